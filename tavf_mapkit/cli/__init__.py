@@ -1,0 +1,1 @@
+"""The ``mapkit`` command line: one module per subcommand, registered lazily in main.py."""

@@ -1,0 +1,33 @@
+"""``mapkit``: build driving-simulation worlds from OSM, SUMO and OpenDRIVE.
+
+Each subcommand lives in its own module; add one by adding a line to COMMANDS.
+"""
+
+from __future__ import annotations
+
+import click
+
+from tavf_mapkit import __version__
+from tavf_mapkit.cli.lazy import LazyGroup
+
+COMMANDS = {
+    "info": "tavf_mapkit.cli.info:info",
+    "export": "tavf_mapkit.cli.export:export",
+    "extract": "tavf_mapkit.cli.extract:extract",
+}
+
+
+@click.group(cls=LazyGroup, lazy_commands=COMMANDS, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="mapkit")
+def cli() -> None:
+    """Turn real city map data into a driving-simulation world.
+
+    \b
+    $ mapkit build osm-extract.osm          # OSM -> OpenDRIVE -> meshes -> collision world
+    $ mapkit info build/tavf/tavf.xodr      # what an OpenDRIVE file holds, and where on Earth
+    $ mapkit export map.xodr --layer lane-border --format csv -o borders.csv
+    """
+
+
+if __name__ == "__main__":
+    cli()

@@ -1,0 +1,27 @@
+"""``twin``: drive a simulated test vehicle through a mapkit build and talk to an Urban Dynamic Map."""
+
+from __future__ import annotations
+
+import click
+
+from tavf_mapkit.cli.lazy import LazyGroup
+from twin import __version__
+
+COMMANDS = {
+    "udm": "twin.cli.udm:udm",
+}
+
+
+@click.group(cls=LazyGroup, lazy_commands=COMMANDS, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="twin")
+def cli() -> None:
+    """Drive a simulated vehicle through a mapkit build.
+
+    \b
+    $ twin drive --map build/sample --random --duration 60
+    $ twin udm serve --port 8765 --seed build/sample
+    """
+
+
+if __name__ == "__main__":
+    cli()
