@@ -1,0 +1,156 @@
+"""The whole map flattened into tables, so that sampling every lane of every road is a few numpy calls.
+
+Lookups across roads use a combined key ``group + s / span`` (group = road or lane row index, span > any s),
+so one searchsorted finds the governing record of every sample of every road at once.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tavf_mapkit.opendrive.cubic import CubicProfile
+from tavf_mapkit.opendrive.geometry import GeometryTable
+
+
+@dataclass(frozen=True, eq=False)
+class RecordTable:
+    """Cubic records of many groups (roads or lanes): key-sorted, with a per-record 'extend before first' flag."""
+
+    group: np.ndarray
+    s0: np.ndarray
+    coefficients: np.ndarray
+    span: float
+    extend_first: bool
+
+    @property
+    def keys(self) -> np.ndarray:
+        keys = self.__dict__.get("_keys")
+        if keys is None:
+            keys = self.group + self.s0 / self.span
+            object.__setattr__(self, "_keys", keys)
+        return keys
+
+    @staticmethod
+    def build(profiles: list[CubicProfile], span: float, extend_first: bool = False) -> "RecordTable":
+        counts = np.array([len(p) for p in profiles], dtype=np.int64)
+        group = np.repeat(np.arange(len(profiles)), counts)
+        nonempty = [p for p in profiles if len(p)]
+        s0 = np.concatenate([p.s0 for p in nonempty]) if nonempty else np.zeros(0)
+        coefficients = np.concatenate([p.coefficients for p in nonempty]) if nonempty else np.zeros((0, 4))
+        return RecordTable(group, s0, coefficients, span, extend_first)
+
+    def evaluate(self, group: np.ndarray, s: np.ndarray, derivative: bool = False) -> np.ndarray:
+        if not len(self.s0):
+            return np.zeros(len(s))
+        index = np.searchsorted(self.keys, group + s / self.span, side="right") - 1
+        if self.extend_first:
+            # before a group's first record: use that first record
+            first = np.searchsorted(self.group, group, side="left")
+            index = np.where((index < first) & (first < len(self.group)), first, index)
+        i = np.clip(index, 0, len(self.s0) - 1)
+        valid = (index >= 0) & (self.group[i] == group)
+        ds = s - self.s0[i]
+        a, b, c, d = self.coefficients[i].T
+        value = b + ds * (2.0 * c + 3.0 * d * ds) if derivative else a + ds * (b + ds * (c + ds * d))
+        return np.where(valid, value, 0.0)
+
+
+def _step_profile(records: list[tuple[float, float]]) -> CubicProfile:
+    """Lane height records are constant until the next one: a cubic with only the constant term."""
+    return CubicProfile.from_records([(s0, value, 0.0, 0.0, 0.0) for s0, value in records])
+
+
+@dataclass(frozen=True, eq=False)
+class NetworkArrays:
+    geometries: GeometryTable
+    geometry_keys: np.ndarray
+    elevation: RecordTable
+    superelevation: RecordTable
+    lane_offset: RecordTable
+    road_length: np.ndarray
+    span: float
+    # lane sections
+    section_road: np.ndarray
+    section_s0: np.ndarray
+    section_end: np.ndarray
+    # side lanes (every lane except 0), ordered by section, side (left first), |id|
+    lane_section: np.ndarray
+    lane_id: np.ndarray
+    lane_rank: np.ndarray  # 0 for the lane next to the centre, 1 for the next, ...
+    lane_uses_border: np.ndarray
+    lane_type: np.ndarray  # object array of type strings
+    lane_width: RecordTable
+    lane_border: RecordTable
+    lane_height_inner: RecordTable
+    lane_height_outer: RecordTable
+
+    @staticmethod
+    def build(odr) -> "NetworkArrays":
+        roads = odr.roads
+        lengths = np.array([road.length for road in roads], dtype=float)
+        span = float(max(lengths.max(initial=0.0), 1.0) * 2.0 + 10.0)
+        geometries, groups = [], []
+        for index, road in enumerate(roads):
+            geometries.extend(road.reference_line.geometries)
+            groups.extend([index] * len(road.reference_line.geometries))
+        table = GeometryTable.from_geometries(geometries, np.array(groups, dtype=np.int64))
+        section_road, section_s0, section_end = [], [], []
+        lane_section, lane_id, lane_rank, lane_border_flag, lane_type, widths, borders = [], [], [], [], [], [], []
+        heights_inner, heights_outer = [], []
+        for road_index, road in enumerate(roads):
+            for k, section in enumerate(road.lane_sections):
+                section_index = len(section_s0)
+                section_road.append(road_index)
+                section_s0.append(section.s0)
+                section_end.append(road.section_end(k))
+                for side_lanes in (section.left, section.right):
+                    for rank, lane in enumerate(side_lanes):
+                        lane_section.append(section_index)
+                        lane_id.append(lane.id)
+                        lane_rank.append(rank)
+                        lane_border_flag.append(lane.uses_border)
+                        lane_type.append(lane.type)
+                        widths.append(lane.widths)
+                        borders.append(lane.borders)
+                        heights_inner.append(_step_profile([(h.s0, h.inner) for h in lane.heights]))
+                        heights_outer.append(_step_profile([(h.s0, h.outer) for h in lane.heights]))
+        return NetworkArrays(
+            geometries=table,
+            geometry_keys=table.group + table.s / span,
+            elevation=RecordTable.build([r.elevation for r in roads], span),
+            superelevation=RecordTable.build([r.superelevation for r in roads], span),
+            lane_offset=RecordTable.build([r.lane_offset for r in roads], span),
+            road_length=lengths,
+            span=span,
+            section_road=np.array(section_road, dtype=np.int64),
+            section_s0=np.array(section_s0, dtype=float),
+            section_end=np.array(section_end, dtype=float),
+            lane_section=np.array(lane_section, dtype=np.int64),
+            lane_id=np.array(lane_id, dtype=np.int64),
+            lane_rank=np.array(lane_rank, dtype=np.int64),
+            lane_uses_border=np.array(lane_border_flag, dtype=bool),
+            lane_type=np.array(lane_type, dtype=object),
+            lane_width=RecordTable.build(widths, span, extend_first=True),
+            lane_border=RecordTable.build(borders, span, extend_first=True),
+            lane_height_inner=RecordTable.build(heights_inner, span),
+            lane_height_outer=RecordTable.build(heights_outer, span),
+        )
+
+    def reference(self, road: np.ndarray, s: np.ndarray):
+        """(x, y, z, heading, slope, superelevation, lane_offset) for arrays of (road index, s)."""
+        n = len(s)
+        if len(self.geometries):
+            index = np.searchsorted(self.geometry_keys, road + s / self.span, side="right") - 1
+            index = np.clip(index, 0, len(self.geometries) - 1)
+            # a road whose samples fall before its first geometry still uses that first geometry
+            first = np.searchsorted(self.geometries.group, road, side="left")
+            index = np.where(self.geometries.group[index] != road, np.minimum(first, len(self.geometries) - 1), index)
+            has = self.geometries.group[index] == road
+            x, y, heading, _ = self.geometries.evaluate(index, s - self.geometries.s[index])
+            x, y, heading = (np.where(has, v, 0.0) for v in (x, y, heading))
+        else:
+            x = y = heading = np.zeros(n)
+        return (x, y, self.elevation.evaluate(road, s), heading, self.elevation.evaluate(road, s, derivative=True),
+                self.superelevation.evaluate(road, s), self.lane_offset.evaluate(road, s))

@@ -1,0 +1,251 @@
+"""planView geometries: line, arc, spiral, poly3, paramPoly3 -- exact, vectorised evaluation.
+
+Every kernel answers the same question for arrays of (geometry, ds): position, heading and curvature.
+Kernels work on a GeometryTable (struct of arrays), so one road or a whole network evaluate alike.
+Spirals and poly3/paramPoly3 arc lengths are integrated with Gauss-Legendre quadrature on panels small
+enough that the result is exact to double precision, rather than with fixed steps.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import IntEnum
+
+import numpy as np
+
+
+class GeometryKind(IntEnum):
+    LINE = 0
+    ARC = 1
+    SPIRAL = 2
+    POLY3 = 3
+    PARAM_POLY3 = 4
+
+
+#: number of parameters stored per geometry kind (the parameter row has 9 slots)
+PARAMETER_NAMES = {
+    GeometryKind.LINE: (),
+    GeometryKind.ARC: ("curvature",),
+    GeometryKind.SPIRAL: ("curvStart", "curvEnd"),
+    GeometryKind.POLY3: ("a", "b", "c", "d"),
+    GeometryKind.PARAM_POLY3: ("aU", "bU", "cU", "dU", "aV", "bV", "cV", "dV", "normalized"),
+}
+ELEMENT_NAMES = {
+    GeometryKind.LINE: "line",
+    GeometryKind.ARC: "arc",
+    GeometryKind.SPIRAL: "spiral",
+    GeometryKind.POLY3: "poly3",
+    GeometryKind.PARAM_POLY3: "paramPoly3",
+}
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """One ``<geometry>`` record of a planView."""
+
+    s: float
+    x: float
+    y: float
+    hdg: float
+    length: float
+    kind: GeometryKind
+    params: tuple[float, ...] = ()
+    line: int | None = field(default=None, compare=False)
+    extra_xml: tuple[bytes, ...] = field(default=(), compare=False)
+
+    def parameter_row(self) -> list[float]:
+        row = list(self.params) + [0.0] * (9 - len(self.params))
+        return row[:9]
+
+
+@dataclass(frozen=True, eq=False)
+class GeometryTable:
+    """Geometries as arrays, sorted by (group, s); ``group`` is the road index in a network table."""
+
+    group: np.ndarray
+    s: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    hdg: np.ndarray
+    length: np.ndarray
+    kind: np.ndarray
+    params: np.ndarray  # (n, 9)
+
+    @staticmethod
+    def from_geometries(geometries, group: np.ndarray | None = None) -> "GeometryTable":
+        n = len(geometries)
+        values = np.array([(g.s, g.x, g.y, g.hdg, g.length, int(g.kind)) for g in geometries], dtype=float)
+        values = values.reshape(n, 6)
+        params = np.array([g.parameter_row() for g in geometries], dtype=float).reshape(n, 9)
+        return GeometryTable(
+            np.zeros(n, dtype=np.int64) if group is None else np.asarray(group, dtype=np.int64),
+            values[:, 0], values[:, 1], values[:, 2], values[:, 3], values[:, 4],
+            values[:, 5].astype(np.int8), params,
+        )
+
+    def __len__(self) -> int:
+        return len(self.s)
+
+    def evaluate(self, index: np.ndarray, ds: np.ndarray):
+        """(x, y, heading, curvature) of geometry ``index[i]`` at distance ``ds[i]`` along it."""
+        x = np.empty(len(index))
+        y = np.empty(len(index))
+        hdg = np.empty(len(index))
+        curvature = np.empty(len(index))
+        kinds = self.kind[index]
+        for kind in np.unique(kinds):
+            mask = kinds == kind
+            g = index[mask]
+            local = _KERNELS[GeometryKind(int(kind))](self.params[g], self.length[g], ds[mask])
+            u, v, theta, k = local
+            cos_h = np.cos(self.hdg[g])
+            sin_h = np.sin(self.hdg[g])
+            x[mask] = self.x[g] + cos_h * u - sin_h * v
+            y[mask] = self.y[g] + sin_h * u + cos_h * v
+            hdg[mask] = self.hdg[g] + theta
+            curvature[mask] = k
+        return x, y, hdg, curvature
+
+
+# Each local kernel returns (u, v, heading change, curvature) in the geometry's own frame.
+
+def _line(params, length, ds):
+    zero = np.zeros_like(ds)
+    return ds, zero, zero, zero
+
+
+def _arc(params, length, ds):
+    k = params[:, 0]
+    angle = k * ds
+    # chord = 2 sin(k ds / 2) / k, written with sinc so that k -> 0 is exact, not 0/0
+    chord = ds * np.sinc(angle / (2.0 * np.pi))
+    return chord * np.cos(angle / 2.0), chord * np.sin(angle / 2.0), angle, k
+
+
+_GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(16)
+
+
+def _panel_count(phase_change: np.ndarray) -> int:
+    """Panels so that the integrand's phase changes by at most ~1.5 rad per 16-point panel (exact in double)."""
+    if not phase_change.size:
+        return 1
+    return int(min(256, max(1, np.ceil(np.max(np.abs(phase_change)) / 1.5))))
+
+
+def _integrate(func, upper: np.ndarray, panels: int) -> np.ndarray:
+    """Integral of func(t) (vectorised over rows) from 0 to upper[i], composite Gauss-Legendre."""
+    edges = np.linspace(0.0, 1.0, panels + 1)
+    lo, hi = edges[:-1], edges[1:]
+    nodes = (0.5 * (hi - lo)[:, None] * (_GL_NODES[None, :] + 1.0) + lo[:, None]).ravel()
+    weights = (0.5 * (hi - lo)[:, None] * _GL_WEIGHTS[None, :]).ravel()
+    t = upper[:, None] * nodes[None, :]
+    return func(t) @ weights * upper
+
+
+def _spiral(params, length, ds):
+    c0 = params[:, 0]
+    rate = np.divide(params[:, 1] - params[:, 0], length, out=np.zeros_like(length), where=length > 0)
+    theta = c0 * ds + 0.5 * rate * ds * ds
+    panels = _panel_count(np.abs(c0) * np.abs(ds) + 0.5 * np.abs(rate) * ds * ds)
+    c0c, ratec = c0[:, None], rate[:, None]
+    u = _integrate(lambda t: np.cos(c0c * t + 0.5 * ratec * t * t), ds, panels)
+    v = _integrate(lambda t: np.sin(c0c * t + 0.5 * ratec * t * t), ds, panels)
+    return u, v, theta, c0 + rate * ds
+
+
+_TABLE_PANELS = 16
+_LOCAL_NODES, _LOCAL_WEIGHTS = np.polynomial.legendre.leggauss(10)
+
+
+def _arc_length_inverse(speed, p_end: np.ndarray, target: np.ndarray, row: np.ndarray) -> np.ndarray:
+    """p with arc_length(0..p) = target for each sample of a curve with |c'(p)| = speed(rows, p).
+
+    Per curve an arc-length table at 16 panel edges (16-node Gauss-Legendre per panel), then per sample a
+    few Newton steps from the panel edge with a 10-node rule: exact to ~1e-12 m, ~30 speed evaluations.
+    ``row`` maps each sample to its curve (index into p_end).
+    """
+    edges = np.linspace(0.0, 1.0, _TABLE_PANELS + 1)[None, :] * p_end[:, None]  # (curves, panels+1)
+    half = 0.5 * (edges[:, 1:] - edges[:, :-1])
+    nodes = edges[:, :-1, None] + half[:, :, None] * (_GL_NODES[None, None, :] + 1.0)
+    curves = np.arange(len(p_end))
+    panel_lengths = (speed(curves[:, None, None], nodes) * _GL_WEIGHTS[None, None, :]).sum(axis=2) * half
+    table = np.concatenate([np.zeros((len(p_end), 1)), np.cumsum(panel_lengths, axis=1)], axis=1)
+    k = np.clip((table[row, 1:] <= target[:, None]).sum(axis=1), 0, _TABLE_PANELS - 1)
+    a0, a1 = table[row, k], table[row, k + 1]
+    p0, p1 = edges[row, k], edges[row, k + 1]
+    fraction = np.divide(target - a0, a1 - a0, out=np.zeros_like(target), where=a1 > a0)
+    p = p0 + fraction * (p1 - p0)
+    for _ in range(4):
+        h = 0.5 * (p - p0)
+        local_nodes = p0[:, None] + h[:, None] * (_LOCAL_NODES[None, :] + 1.0)
+        length = a0 + (speed(row[:, None], local_nodes) @ _LOCAL_WEIGHTS) * h
+        p = p - (length - target) / np.maximum(speed(row, p), 1e-12)
+    return p
+
+
+def _poly3(params, length, ds):
+    a, b, c, d = (params[:, i] for i in range(4))
+    rows = np.arange(len(ds))
+
+    def slope(r, u):
+        return b[r] + u * (2 * c[r] + 3 * d[r] * u)
+
+    # u runs along the local x axis; the curve's arc length is s, so invert it (u_end <= length always)
+    u = _arc_length_inverse(lambda r, u: np.sqrt(1.0 + slope(r, u) ** 2), np.maximum(length, 1e-9), ds, rows)
+    v = a + u * (b + u * (c + u * d))
+    first = slope(rows, u)
+    second = 2 * c + 6 * d * u
+    curvature = second / (1.0 + first * first) ** 1.5
+    return u, v, np.arctan(first), curvature
+
+
+def _param_poly3(params, length, ds):
+    """s is arc length along the curve while p need not be; the geometry's @length is mapped onto the
+    curve's true length, so that consecutive geometries stay joined even when the file's @length is off
+    by a few millimetres (the validator reports such files)."""
+    aU, bU, cU, dU, aV, bV, cV, dV, normalized = (params[:, i] for i in range(9))
+    p_end = np.where(normalized > 0.5, 1.0, length)
+    # one table per distinct geometry: samples share the geometry's row
+    key = np.column_stack([params, length])
+    unique, row = np.unique(key, axis=0, return_inverse=True)
+    row = row.ravel()
+    gu = unique[:, :9]
+    g_end = np.where(unique[:, 8] > 0.5, 1.0, unique[:, 9])
+
+    def speed(r, p):
+        du = gu[r, 1] + p * (2 * gu[r, 2] + 3 * gu[r, 3] * p)
+        dv = gu[r, 5] + p * (2 * gu[r, 6] + 3 * gu[r, 7] * p)
+        return np.hypot(du, dv)
+
+    total = _arc_length_inverse_total(speed, g_end)
+    scale = np.divide(total[row], length, out=np.ones_like(length), where=length > 0)
+    p = _arc_length_inverse(speed, g_end, ds * scale, row)
+    p = np.where(length > 0, p, 0.0)
+    del p_end
+    u = aU + p * (bU + p * (cU + p * dU))
+    v = aV + p * (bV + p * (cV + p * dV))
+    u1 = bU + p * (2 * cU + 3 * dU * p)
+    v1 = bV + p * (2 * cV + 3 * dV * p)
+    u2 = 2 * cU + 6 * dU * p
+    v2 = 2 * cV + 6 * dV * p
+    speed_p = np.hypot(u1, v1)
+    curvature = np.divide(u1 * v2 - v1 * u2, speed_p ** 3, out=np.zeros_like(speed_p), where=speed_p > 0)
+    return u, v, np.arctan2(v1, u1), curvature
+
+
+def _arc_length_inverse_total(speed, p_end: np.ndarray) -> np.ndarray:
+    """Total arc length of each curve over [0, p_end] (16 panels x 16 Gauss-Legendre nodes)."""
+    edges = np.linspace(0.0, 1.0, _TABLE_PANELS + 1)[None, :] * p_end[:, None]
+    half = 0.5 * (edges[:, 1:] - edges[:, :-1])
+    nodes = edges[:, :-1, None] + half[:, :, None] * (_GL_NODES[None, None, :] + 1.0)
+    curves = np.arange(len(p_end))
+    return ((speed(curves[:, None, None], nodes) * _GL_WEIGHTS[None, None, :]).sum(axis=2) * half).sum(axis=1)
+
+
+_KERNELS = {
+    GeometryKind.LINE: _line,
+    GeometryKind.ARC: _arc,
+    GeometryKind.SPIRAL: _spiral,
+    GeometryKind.POLY3: _poly3,
+    GeometryKind.PARAM_POLY3: _param_poly3,
+}

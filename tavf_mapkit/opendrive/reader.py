@@ -1,0 +1,488 @@
+"""OpenDRIVE 1.4-1.8 reader: safe, streaming (one top-level element at a time), never a traceback.
+
+Unknown elements and userData are kept verbatim so the writer can put them back. Numbers are checked:
+NaN, infinity and negative lengths are reported with file, line and road id.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+from lxml import etree
+
+from tavf_mapkit.errors import InputError
+from tavf_mapkit.opendrive.cubic import CubicProfile
+from tavf_mapkit.opendrive.diagnostics import Diagnostic
+from tavf_mapkit.opendrive.geometry import Geometry, GeometryKind
+from tavf_mapkit.opendrive.header import Header, Offset
+from tavf_mapkit.opendrive.junction import Connection, Controller, Junction, JunctionController, LaneLink
+from tavf_mapkit.opendrive.lane import Lane, LaneHeight, LaneRecord, RoadMark, RoadMarkLine
+from tavf_mapkit.opendrive.lanesection import LaneSection
+from tavf_mapkit.opendrive.network import OpenDriveMap
+from tavf_mapkit.opendrive.objects import ObjectRepeat, Outline, OutlineCorner, RoadObject, Signal, SignalReference
+from tavf_mapkit.opendrive.refline import ReferenceLine
+from tavf_mapkit.opendrive.road import Road, RoadLink, RoadType, ShapeRecord
+from tavf_mapkit.opendrive.units import speed_to_mps
+from tavf_mapkit.xmlsafe import XmlSource, iterparse_safe, prepare_xml_bytes, read_xml_source
+
+_GEOMETRY_TAGS = {
+    "line": GeometryKind.LINE, "arc": GeometryKind.ARC, "spiral": GeometryKind.SPIRAL,
+    "poly3": GeometryKind.POLY3, "paramPoly3": GeometryKind.PARAM_POLY3,
+}
+_CUBIC = ("a", "b", "c", "d")
+
+
+def load_opendrive(path: str | Path) -> OpenDriveMap:
+    """Read an OpenDRIVE file; raises InputError (one line, with location) if it cannot be read."""
+    return _Reader(read_xml_source(path)).read()
+
+
+def loads_opendrive(data: bytes | str, name: str = "<string>") -> OpenDriveMap:
+    if isinstance(data, str):
+        data = data.encode("utf-8")
+    return _Reader(prepare_xml_bytes(data, name)).read()
+
+
+def _local(tag) -> str:
+    if not isinstance(tag, str):
+        return ""
+    return tag.rsplit("}", 1)[-1]
+
+
+def _verbatim(element) -> bytes:
+    text = etree.tostring(element, with_tail=False)
+    return text
+
+
+class _Reader:
+    def __init__(self, source: XmlSource):
+        self.source = source
+        self.warnings: list[Diagnostic] = []
+        self.road_id: str | None = None
+
+    # -- helpers ---------------------------------------------------------------------------------------------
+    def line(self, element) -> int | None:
+        return element.sourceline + self.source.line_offset if element.sourceline else None
+
+    def error(self, message: str, element=None, road: str | None = None) -> InputError:
+        return InputError(message, file=self.source.name, line=self.line(element) if element is not None else None,
+                          element=_local(element.tag) if element is not None else None,
+                          road=road if road is not None else self.road_id)
+
+    def warn(self, message: str, element=None) -> None:
+        self.warnings.append(Diagnostic(message, self.line(element) if element is not None else None,
+                                        self.road_id, _local(element.tag) if element is not None else None))
+
+    def number(self, element, name: str, default: float | None = None, required: bool = False,
+               minimum: float | None = None) -> float | None:
+        raw = element.get(name)
+        if raw is None or raw.strip() == "":
+            if required:
+                raise self.error(f"missing required attribute @{name}", element)
+            return default
+        try:
+            value = float(raw)
+        except ValueError:
+            raise self.error(f"@{name}={raw!r} is not a number", element) from None
+        if not math.isfinite(value):
+            raise self.error(f"@{name}={raw!r} is not a finite number", element)
+        if minimum is not None and value < minimum:
+            raise self.error(f"@{name}={raw} must be >= {minimum:g}", element)
+        return value
+
+    def integer(self, element, name: str, default: int | None = None, required: bool = False) -> int | None:
+        value = self.number(element, name, None, required)
+        if value is None:
+            return default
+        if value != int(value):
+            raise self.error(f"@{name}={element.get(name)!r} is not an integer", element)
+        return int(value)
+
+    def cubic(self, element, s_name: str = "s", base: float = 0.0) -> tuple[float, ...]:
+        return (base + self.number(element, s_name, 0.0),) + tuple(self.number(element, k, 0.0) for k in _CUBIC)
+
+    @staticmethod
+    def children(element, tag: str):
+        return [child for child in element if _local(child.tag) == tag]
+
+    @staticmethod
+    def child(element, tag: str):
+        for child in element:
+            if _local(child.tag) == tag:
+                return child
+        return None
+
+    @staticmethod
+    def unknown(element, known: set[str]) -> tuple[bytes, ...]:
+        return tuple(_verbatim(child) for child in element
+                     if isinstance(child.tag, str) and _local(child.tag) not in known)
+
+    # -- document ------------------------------------------------------------------------------------------
+    def read(self) -> OpenDriveMap:
+        header = None
+        roads, junctions, controllers, extras = [], [], [], []
+        depth = 0
+        root_seen = False
+        for event, element in iterparse_safe(self.source):
+            if event == "start":
+                depth += 1
+                if depth == 1:
+                    root_seen = True
+                    if _local(element.tag) != "OpenDRIVE":
+                        raise self.error(f"root element is <{_local(element.tag)}>, expected <OpenDRIVE>", element)
+                continue
+            depth -= 1
+            if depth != 1:
+                continue
+            tag = _local(element.tag)
+            if tag == "header":
+                header = self.header(element)
+            elif tag == "road":
+                roads.append(self.road(element))
+            elif tag == "junction":
+                junctions.append(self.junction(element))
+            elif tag == "controller":
+                controllers.append(self.controller(element))
+            elif isinstance(element.tag, str):
+                extras.append(_verbatim(element))
+            # bounded memory: drop what has been converted
+            element.clear()
+            parent = element.getparent()
+            if parent is not None:
+                while element.getprevious() is not None:
+                    del parent[0]
+        if not root_seen:
+            raise InputError("empty document, expected <OpenDRIVE>", file=self.source.name)
+        if header is None:
+            self.warnings.append(Diagnostic("no <header>; assuming OpenDRIVE 1.4 without georeference"))
+            header = Header()
+        self.check_links(roads, junctions)
+        return OpenDriveMap(header, tuple(roads), tuple(junctions), tuple(controllers), self.source.name,
+                            tuple(self.warnings), tuple(extras))
+
+    def header(self, element) -> Header:
+        self.road_id = None
+        geo = self.child(element, "geoReference")
+        offset_element = self.child(element, "offset")
+        offset = None
+        if offset_element is not None:
+            offset = Offset(*(self.number(offset_element, k, 0.0) for k in ("x", "y", "z", "hdg")))
+        geo_text = None
+        if geo is not None:
+            geo_text = "".join(geo.itertext()).strip() or None
+        known = {"geoReference", "offset"}
+        return Header(
+            rev_major=self.integer(element, "revMajor", 1), rev_minor=self.integer(element, "revMinor", 4),
+            name=element.get("name", ""), version=element.get("version"), date=element.get("date"),
+            north=self.number(element, "north", 0.0), south=self.number(element, "south", 0.0),
+            east=self.number(element, "east", 0.0), west=self.number(element, "west", 0.0),
+            vendor=element.get("vendor"), geo_reference=geo_text, offset=offset, line=self.line(element),
+            attrib=dict(element.attrib), extra_xml=self.unknown(element, known),
+        )
+
+    # -- roads -----------------------------------------------------------------------------------------------
+    def road(self, element) -> Road:
+        road_id = element.get("id")
+        self.road_id = road_id
+        if road_id is None:
+            raise self.error("road without @id", element, road="?")
+        length = self.number(element, "length", required=True)
+        if length < 0:
+            raise self.error(f"@length={element.get('length')} is negative", element)
+        link = self.child(element, "link")
+        predecessor = successor = None
+        extra = {}
+        if link is not None:
+            predecessor = self.road_link(self.child(link, "predecessor"))
+            successor = self.road_link(self.child(link, "successor"))
+            extra["link"] = self.unknown(link, {"predecessor", "successor"})
+        types = tuple(self.road_type(t) for t in self.children(element, "type"))
+        plan_view = self.child(element, "planView")
+        geometries = self.plan_view(plan_view, length) if plan_view is not None else ()
+        if plan_view is None:
+            self.warn("road has no <planView>", element)
+        elevation = superelevation = lane_offset = None
+        shape = ()
+        profile = self.child(element, "elevationProfile")
+        if profile is not None:
+            elevation = CubicProfile.from_records([self.cubic(e) for e in self.children(profile, "elevation")])
+            extra["elevationProfile"] = self.unknown(profile, {"elevation"})
+        lateral = self.child(element, "lateralProfile")
+        if lateral is not None:
+            superelevation = CubicProfile.from_records(
+                [self.cubic(e) for e in self.children(lateral, "superelevation")])
+            shape = tuple(ShapeRecord(self.number(e, "s", 0.0), self.number(e, "t", 0.0),
+                                      tuple(self.number(e, k, 0.0) for k in _CUBIC))
+                          for e in self.children(lateral, "shape"))
+            extra["lateralProfile"] = self.unknown(lateral, {"superelevation", "shape"})
+        lanes = self.child(element, "lanes")
+        sections: tuple[LaneSection, ...] = ()
+        if lanes is not None:
+            lane_offset = CubicProfile.from_records([self.cubic(e) for e in self.children(lanes, "laneOffset")])
+            sections = self.lane_sections(lanes, length)
+            extra["lanes"] = self.unknown(lanes, {"laneOffset", "laneSection"})
+        if not sections:
+            self.warn("road has no lane section", element)
+        objects_element = self.child(element, "objects")
+        objects = ()
+        if objects_element is not None:
+            objects = tuple(self.road_object(o) for o in self.children(objects_element, "object"))
+            extra["objects"] = self.unknown(objects_element, {"object"})
+        signals_element = self.child(element, "signals")
+        signals, references = (), ()
+        if signals_element is not None:
+            signals = tuple(self.signal(s) for s in self.children(signals_element, "signal"))
+            references = tuple(self.signal_reference(s) for s in self.children(signals_element, "signalReference"))
+            extra["signals"] = self.unknown(signals_element, {"signal", "signalReference"})
+        extra["road"] = self.unknown(element, {"link", "type", "planView", "elevationProfile", "lateralProfile",
+                                               "lanes", "objects", "signals"})
+        kwargs = {}
+        if elevation is not None:
+            kwargs["elevation"] = elevation
+        if superelevation is not None:
+            kwargs["superelevation"] = superelevation
+        if lane_offset is not None:
+            kwargs["lane_offset"] = lane_offset
+        return Road(
+            id=road_id, length=length, reference_line=ReferenceLine(geometries), lane_sections=sections,
+            junction=element.get("junction", "-1"), name=element.get("name", ""), rule=element.get("rule", "RHT"),
+            predecessor=predecessor, successor=successor, types=types, shape=shape, objects=objects,
+            signals=signals, signal_references=references, line=self.line(element), attrib=dict(element.attrib),
+            extra_xml={k: v for k, v in extra.items() if v}, **kwargs,
+        )
+
+    def road_link(self, element) -> RoadLink | None:
+        if element is None:
+            return None
+        element_id = element.get("elementId")
+        if element_id is None:
+            raise self.error("link without @elementId", element)
+        return RoadLink(element.get("elementType", "road"), element_id, element.get("contactPoint"),
+                        dict(element.attrib))
+
+    def road_type(self, element) -> RoadType:
+        speed = self.child(element, "speed")
+        speed_max = None
+        if speed is not None:
+            speed_max = speed_to_mps(speed.get("max"), speed.get("unit"))
+        return RoadType(self.number(element, "s", 0.0), element.get("type", "unknown"), element.get("country"),
+                        speed_max, dict(element.attrib), dict(speed.attrib) if speed is not None else None)
+
+    def plan_view(self, element, road_length: float) -> tuple[Geometry, ...]:
+        geometries = []
+        for g in self.children(element, "geometry"):
+            s = self.number(g, "s", required=True)
+            x = self.number(g, "x", required=True)
+            y = self.number(g, "y", required=True)
+            hdg = self.number(g, "hdg", 0.0)
+            length = self.number(g, "length", required=True)
+            if length < 0:
+                self.warn(f"geometry at s={s:g} has negative @length={length:g}; skipped", g)
+                continue
+            kind_element = next((c for c in g if isinstance(c.tag, str)), None)
+            if kind_element is None:
+                self.warn(f"geometry at s={s:g} has no shape element; skipped", g)
+                continue
+            tag = _local(kind_element.tag)
+            kind = _GEOMETRY_TAGS.get(tag)
+            if kind is None:
+                self.warn(f"unknown geometry element <{tag}> at s={s:g}; skipped", kind_element)
+                continue
+            if kind is GeometryKind.ARC:
+                params = (self.number(kind_element, "curvature", required=True),)
+            elif kind is GeometryKind.SPIRAL:
+                params = (self.number(kind_element, "curvStart", required=True),
+                          self.number(kind_element, "curvEnd", required=True))
+            elif kind is GeometryKind.POLY3:
+                params = tuple(self.number(kind_element, k, 0.0) for k in _CUBIC)
+            elif kind is GeometryKind.PARAM_POLY3:
+                p_range = kind_element.get("pRange", "normalized")
+                if p_range not in ("normalized", "arcLength"):
+                    raise self.error(f"@pRange={p_range!r} must be 'arcLength' or 'normalized'", kind_element)
+                params = tuple(self.number(kind_element, k, 0.0)
+                               for k in ("aU", "bU", "cU", "dU", "aV", "bV", "cV", "dV"))
+                params += (1.0 if p_range == "normalized" else 0.0,)
+            else:
+                params = ()
+            if length == 0.0:
+                self.warn(f"zero-length <{tag}> geometry at s={s:g}; tolerated", g)
+            geometries.append(Geometry(s, x, y, hdg, length, kind, params, self.line(g),
+                                       self.unknown(g, set(_GEOMETRY_TAGS))))
+        geometries.sort(key=lambda geometry: geometry.s)
+        return tuple(geometries)
+
+    def lane_sections(self, lanes_element, road_length: float) -> tuple[LaneSection, ...]:
+        sections = []
+        for element in self.children(lanes_element, "laneSection"):
+            s0 = self.number(element, "s", 0.0)
+            lanes = []
+            for group in ("left", "center", "right"):
+                group_element = self.child(element, group)
+                if group_element is None:
+                    continue
+                for lane_element in self.children(group_element, "lane"):
+                    lanes.append(self.lane(lane_element, s0))
+            sections.append(LaneSection(
+                s0, tuple(lanes), element.get("singleSide"), self.line(element), dict(element.attrib),
+                self.unknown(element, {"left", "center", "right"})))
+        sections.sort(key=lambda section: section.s0)
+        # zero-length lane sections are legal but carry no surface: keep them, evaluation skips them
+        for first, second in zip(sections, sections[1:]):
+            if second.s0 - first.s0 <= 0:
+                self.warnings.append(Diagnostic(f"zero-length lane section at s={first.s0:g}; tolerated",
+                                                first.line, self.road_id, "laneSection"))
+        return tuple(sections)
+
+    def lane(self, element, section_s0: float) -> Lane:
+        lane_id = self.integer(element, "id", required=True)
+        link = self.child(element, "link")
+        predecessor = successor = None
+        if link is not None:
+            p = self.child(link, "predecessor")
+            s = self.child(link, "successor")
+            predecessor = self.integer(p, "id", required=True) if p is not None else None
+            successor = self.integer(s, "id", required=True) if s is not None else None
+        widths = [self.cubic(e, "sOffset", section_s0) for e in self.children(element, "width")]
+        borders = [self.cubic(e, "sOffset", section_s0) for e in self.children(element, "border")]
+        heights = tuple(LaneHeight(section_s0 + self.number(h, "sOffset", 0.0), self.number(h, "inner", 0.0),
+                                   self.number(h, "outer", 0.0)) for h in self.children(element, "height"))
+        marks = tuple(self.road_mark(m, section_s0) for m in self.children(element, "roadMark"))
+        records = tuple(
+            LaneRecord(_local(r.tag), section_s0 + self.number(r, "sOffset", 0.0), dict(r.attrib),
+                       tuple(_verbatim(c) for c in r if isinstance(c.tag, str)))
+            for r in element if _local(r.tag) in ("speed", "access", "material", "visibility", "rule"))
+        level = element.get("level", "false").lower() in ("true", "1")
+        lane_type = element.get("type", "none")
+        return Lane(
+            lane_id, lane_type, level, predecessor, successor, CubicProfile.from_records(widths, extend_first=True),
+            CubicProfile.from_records(borders, extend_first=True), heights, marks, records, self.line(element), dict(element.attrib),
+            self.unknown(element, {"link", "width", "border", "height", "roadMark", "speed", "access", "material",
+                                   "visibility", "rule"}),
+        )
+
+    def road_mark(self, element, section_s0: float) -> RoadMark:
+        type_element = self.child(element, "type")
+        explicit_element = self.child(element, "explicit")
+        lines, explicit, type_name, type_width = (), False, None, None
+        source = type_element if type_element is not None else explicit_element
+        if source is not None:
+            explicit = source is explicit_element
+            lines = tuple(
+                RoadMarkLine(self.number(line, "length", 0.0), self.number(line, "space", 0.0),
+                             self.number(line, "tOffset", 0.0), self.number(line, "sOffset", 0.0),
+                             self.number(line, "width"), line.get("rule"), line.get("color"), dict(line.attrib))
+                for line in self.children(source, "line"))
+            if type_element is not None:
+                type_name = type_element.get("name")
+                type_width = self.number(type_element, "width")
+        return RoadMark(
+            section_s0 + self.number(element, "sOffset", 0.0), element.get("type", "none"), element.get("weight"),
+            element.get("color", "standard"), self.number(element, "width"), element.get("laneChange"),
+            self.number(element, "height"), element.get("material"), type_name, type_width, lines, explicit,
+            dict(element.attrib), self.unknown(element, {"type", "explicit"}),
+        )
+
+    def road_object(self, element) -> RoadObject:
+        repeats = tuple(self.repeat(r) for r in self.children(element, "repeat"))
+        outline_elements = self.children(element, "outline")
+        outlines_group = self.child(element, "outlines")
+        if outlines_group is not None:
+            outline_elements += self.children(outlines_group, "outline")
+        outlines = tuple(self.outline(o) for o in outline_elements)
+        return RoadObject(
+            id=element.get("id", ""), s=self.number(element, "s", 0.0), t=self.number(element, "t", 0.0),
+            type=element.get("type", "none"), name=element.get("name", ""),
+            z_offset=self.number(element, "zOffset", 0.0), hdg=self.number(element, "hdg", 0.0),
+            pitch=self.number(element, "pitch", 0.0), roll=self.number(element, "roll", 0.0),
+            length=self.number(element, "length"), width=self.number(element, "width"),
+            height=self.number(element, "height"), radius=self.number(element, "radius"),
+            orientation=element.get("orientation", "none"), repeats=repeats, outlines=outlines,
+            line=self.line(element), attrib=dict(element.attrib),
+            extra_xml=self.unknown(element, {"repeat", "outline", "outlines"}),
+        )
+
+    def repeat(self, element) -> ObjectRepeat:
+        n = self.number
+        return ObjectRepeat(
+            n(element, "s", 0.0), n(element, "length", 0.0), n(element, "distance", 0.0),
+            n(element, "tStart", 0.0), n(element, "tEnd", 0.0), n(element, "zOffsetStart", 0.0),
+            n(element, "zOffsetEnd", 0.0), n(element, "heightStart"), n(element, "heightEnd"),
+            n(element, "widthStart"), n(element, "widthEnd"), n(element, "lengthStart"), n(element, "lengthEnd"),
+            n(element, "radiusStart"), n(element, "radiusEnd"), dict(element.attrib),
+        )
+
+    def outline(self, element) -> Outline:
+        corners = []
+        for corner in element:
+            tag = _local(corner.tag)
+            if tag == "cornerLocal":
+                corners.append(OutlineCorner(tag, self.number(corner, "u", 0.0), self.number(corner, "v", 0.0),
+                                             self.number(corner, "z", 0.0), self.number(corner, "height", 0.0),
+                                             dict(corner.attrib)))
+            elif tag == "cornerRoad":
+                corners.append(OutlineCorner(tag, self.number(corner, "s", 0.0), self.number(corner, "t", 0.0),
+                                             self.number(corner, "dz", 0.0), self.number(corner, "height", 0.0),
+                                             dict(corner.attrib)))
+        closed = element.get("closed", "true").lower() in ("true", "1")
+        return Outline(tuple(corners), closed, dict(element.attrib))
+
+    def signal(self, element) -> Signal:
+        return Signal(
+            id=element.get("id", ""), s=self.number(element, "s", 0.0), t=self.number(element, "t", 0.0),
+            dynamic=element.get("dynamic", "no").lower() in ("yes", "true"),
+            orientation=element.get("orientation", "+"), z_offset=self.number(element, "zOffset", 0.0),
+            country=element.get("country"), type=element.get("type", "-1"), subtype=element.get("subtype", "-1"),
+            value=self.number(element, "value"), unit=element.get("unit"), name=element.get("name", ""),
+            height=self.number(element, "height"), width=self.number(element, "width"),
+            h_offset=self.number(element, "hOffset", 0.0), pitch=self.number(element, "pitch", 0.0),
+            roll=self.number(element, "roll", 0.0), line=self.line(element), attrib=dict(element.attrib),
+            extra_xml=tuple(_verbatim(c) for c in element if isinstance(c.tag, str)),
+        )
+
+    def signal_reference(self, element) -> SignalReference:
+        return SignalReference(element.get("id", ""), self.number(element, "s", 0.0), self.number(element, "t", 0.0),
+                               element.get("orientation", "+"), dict(element.attrib),
+                               tuple(_verbatim(c) for c in element if isinstance(c.tag, str)))
+
+    # -- junctions and controllers ---------------------------------------------------------------------------
+    def junction(self, element) -> Junction:
+        self.road_id = None
+        connections = []
+        for c in self.children(element, "connection"):
+            links = tuple(LaneLink(self.integer(link, "from", required=True), self.integer(link, "to", required=True))
+                          for link in self.children(c, "laneLink"))
+            connections.append(Connection(
+                c.get("id", ""), c.get("incomingRoad", ""), c.get("connectingRoad", c.get("linkedRoad", "")),
+                c.get("contactPoint", "start"), links, dict(c.attrib), self.unknown(c, {"laneLink"})))
+        controllers = tuple(JunctionController(c.get("id", ""), c.get("type"), self.integer(c, "sequence"))
+                            for c in self.children(element, "controller"))
+        return Junction(element.get("id", ""), element.get("name", ""), element.get("type", "default"),
+                        tuple(connections), controllers, self.line(element), dict(element.attrib),
+                        self.unknown(element, {"connection", "controller"}))
+
+    def controller(self, element) -> Controller:
+        self.road_id = None
+        return Controller(element.get("id", ""), element.get("name", ""), self.integer(element, "sequence"),
+                          tuple(c.get("signalId", "") for c in self.children(element, "control")),
+                          dict(element.attrib), self.unknown(element, {"control"}))
+
+    def check_links(self, roads: list[Road], junctions: list[Junction]) -> None:
+        """Dangling links become warnings with the road id: the map still loads."""
+        road_ids = {road.id for road in roads}
+        junction_ids = {junction.id for junction in junctions}
+        for road in roads:
+            for name, link in (("predecessor", road.predecessor), ("successor", road.successor)):
+                if link is None:
+                    continue
+                known = road_ids if link.element_type == "road" else junction_ids
+                if link.element_id not in known:
+                    self.warnings.append(Diagnostic(
+                        f"{name} links to missing {link.element_type} {link.element_id}", road.line, road.id, "link"))
+        for junction in junctions:
+            for connection in junction.connections:
+                for road_id in (connection.incoming_road, connection.connecting_road):
+                    if road_id and road_id not in road_ids:
+                        self.warnings.append(Diagnostic(
+                            f"junction {junction.id} connection {connection.id} names missing road {road_id}",
+                            junction.line, None, "connection"))

@@ -1,0 +1,1 @@
+"""OpenStreetMap input: cut an area out of an OSM file with osmium and count what it holds."""
