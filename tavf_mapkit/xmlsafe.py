@@ -21,13 +21,14 @@ _ENTITY = re.compile(rb"<!ENTITY", re.IGNORECASE)
 _PROLOG_SCAN_BYTES = 1 << 16
 
 
-@dataclass(frozen=True)
+@dataclass
 class XmlSource:
     """The bytes to hand to the parser and how many lines were skipped before them."""
 
     data: bytes
     line_offset: int
     name: str
+    root: object = None  # set by iterparse_safe once parsing has finished
 
 
 def read_xml_source(path: str | Path) -> XmlSource:
@@ -74,15 +75,16 @@ def safe_parser(**options) -> etree.XMLParser:
     )
 
 
-def iterparse_safe(source: XmlSource, events=("start", "end")):
+def iterparse_safe(source: XmlSource, events=("start", "end"), tag=None):
     """lxml.iterparse over prepared bytes with the safe settings; errors become one-line InputErrors."""
     stream = io.BytesIO(source.data)
     context = etree.iterparse(
-        stream, events=events, resolve_entities=False, no_network=True, load_dtd=False, huge_tree=True,
+        stream, events=events, tag=tag, resolve_entities=False, no_network=True, load_dtd=False, huge_tree=True,
         remove_comments=True, remove_pis=True,
     )
     try:
         yield from context
+        source.root = context.root
     except etree.XMLSyntaxError as error:
         line = error.lineno + source.line_offset if error.lineno else None
         message = error.msg.split(", line ")[0] if error.msg else "malformed XML"

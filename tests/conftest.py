@@ -27,3 +27,31 @@ def shared_path(*parts: str) -> Path:
 def shared():
     """``shared('xodr', 'esmini', 'e6mini.xodr')`` -> Path, skipping or failing as shared_path does."""
     return shared_path
+
+
+def netconvert_binary() -> str:
+    """The netconvert shipped by the eclipse-sumo wheel."""
+    import shutil
+    import sys
+
+    candidate = Path(sys.executable).parent / "netconvert"
+    if candidate.exists():
+        return str(candidate)
+    found = shutil.which("netconvert")
+    if found:
+        return found
+    import sumo  # the eclipse-sumo wheel
+
+    return str(Path(sumo.SUMO_HOME) / "bin" / "netconvert")
+
+
+@pytest.fixture(scope="session")
+def tavf_xodr(tmp_path_factory) -> Path:
+    """DLR's TAVF SUMO network converted to OpenDRIVE by netconvert (once per test session)."""
+    import subprocess
+
+    net = shared_path("hamburg", "tavf_dlr_sumo_net", "network.net.xml.gz")
+    out = tmp_path_factory.mktemp("tavf") / "tavf.xodr"
+    subprocess.run([netconvert_binary(), "-s", str(net), "--opendrive-output", str(out)], check=True,
+                   capture_output=True)
+    return out

@@ -34,6 +34,14 @@ polygon_option = click.option(
     help="Area to keep: a GeoJSON file with Polygon/MultiPolygon geometries (lon/lat).",
 )
 json_option = click.option("--json", "as_json", is_flag=True, help="Print JSON for machines instead of text.")
+output_option = click.option("-o", "--output", default="-", show_default=True,
+                             help="Output file, or - for standard output.")
+step_option = click.option("--step", type=click.FloatRange(min=0.001), default=0.5, show_default=True,
+                           help="Sampling step along s in metres.")
+
+
+def xodr_argument(name: str = "xodr"):
+    return click.argument(name, type=click.Path(dir_okay=False, path_type=str))
 
 
 def area_from(bbox, polygon: Path | None):

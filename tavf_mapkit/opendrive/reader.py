@@ -6,7 +6,6 @@ NaN, infinity and negative lengths are reported with file, line and road id.
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 from lxml import etree
@@ -31,6 +30,7 @@ _GEOMETRY_TAGS = {
     "poly3": GeometryKind.POLY3, "paramPoly3": GeometryKind.PARAM_POLY3,
 }
 _CUBIC = ("a", "b", "c", "d")
+_LANE_RECORDS = frozenset({"speed", "access", "material", "visibility", "rule"})
 
 
 def load_opendrive(path: str | Path) -> OpenDriveMap:
@@ -48,6 +48,15 @@ def _local(tag) -> str:
     if not isinstance(tag, str):
         return ""
     return tag.rsplit("}", 1)[-1]
+
+
+def _strip_namespace(element) -> None:
+    """OpenDRIVE has no namespace, but some writers add one; plain tags keep the converters simple and fast."""
+    if element.tag[0] != "{":
+        return
+    for node in element.iter():
+        if isinstance(node.tag, str) and node.tag[0] == "{":
+            node.tag = node.tag.rsplit("}", 1)[-1]
 
 
 def _verbatim(element) -> bytes:
@@ -77,15 +86,19 @@ class _Reader:
     def number(self, element, name: str, default: float | None = None, required: bool = False,
                minimum: float | None = None) -> float | None:
         raw = element.get(name)
-        if raw is None or raw.strip() == "":
+        if raw is None:
             if required:
                 raise self.error(f"missing required attribute @{name}", element)
             return default
         try:
             value = float(raw)
         except ValueError:
+            if not raw.strip():
+                if required:
+                    raise self.error(f"missing required attribute @{name}", element) from None
+                return default
             raise self.error(f"@{name}={raw!r} is not a number", element) from None
-        if not math.isfinite(value):
+        if value - value != 0.0:  # NaN or infinity, without a function call on the hot path
             raise self.error(f"@{name}={raw!r} is not a finite number", element)
         if minimum is not None and value < minimum:
             raise self.error(f"@{name}={raw} must be >= {minimum:g}", element)
@@ -100,66 +113,72 @@ class _Reader:
         return int(value)
 
     def cubic(self, element, s_name: str = "s", base: float = 0.0) -> tuple[float, ...]:
-        return (base + self.number(element, s_name, 0.0),) + tuple(self.number(element, k, 0.0) for k in _CUBIC)
+        number = self.number
+        return (base + number(element, s_name, 0.0), number(element, "a", 0.0), number(element, "b", 0.0),
+                number(element, "c", 0.0), number(element, "d", 0.0))
 
     @staticmethod
     def children(element, tag: str):
-        return [child for child in element if _local(child.tag) == tag]
+        return element.findall(tag)
 
     @staticmethod
     def child(element, tag: str):
-        for child in element:
-            if _local(child.tag) == tag:
-                return child
-        return None
+        return element.find(tag)
 
     @staticmethod
     def unknown(element, known: set[str]) -> tuple[bytes, ...]:
-        return tuple(_verbatim(child) for child in element
-                     if isinstance(child.tag, str) and _local(child.tag) not in known)
+        if not len(element):
+            return ()
+        return tuple(_verbatim(child) for child in element if child.tag not in known and isinstance(child.tag, str))
 
     # -- document ------------------------------------------------------------------------------------------
     def read(self) -> OpenDriveMap:
         header = None
         roads, junctions, controllers, extras = [], [], [], []
-        depth = 0
-        root_seen = False
-        for event, element in iterparse_safe(self.source):
-            if event == "start":
-                depth += 1
-                if depth == 1:
-                    root_seen = True
-                    if _local(element.tag) != "OpenDRIVE":
-                        raise self.error(f"root element is <{_local(element.tag)}>, expected <OpenDRIVE>", element)
-                continue
-            depth -= 1
-            if depth != 1:
-                continue
-            tag = _local(element.tag)
+        handlers = {"header": None, "road": roads, "junction": junctions, "controller": controllers}
+        root = None
+        # only top-level elements are converted, then cleared: memory stays bounded on huge files
+        for _, element in iterparse_safe(self.source, events=("end",),
+                                         tag=("{*}header", "{*}road", "{*}junction", "{*}controller")):
+            parent = element.getparent()
+            if parent is None or parent.getparent() is not None:
+                continue  # e.g. <controller> inside <junction>
+            if root is None:
+                root = parent
+                self.check_root(root)
+            _strip_namespace(element)
+            tag = element.tag
             if tag == "header":
                 header = self.header(element)
             elif tag == "road":
                 roads.append(self.road(element))
             elif tag == "junction":
                 junctions.append(self.junction(element))
-            elif tag == "controller":
+            else:
                 controllers.append(self.controller(element))
-            elif isinstance(element.tag, str):
-                extras.append(_verbatim(element))
-            # bounded memory: drop what has been converted
             element.clear()
-            parent = element.getparent()
-            if parent is not None:
-                while element.getprevious() is not None:
-                    del parent[0]
-        if not root_seen:
+            while element.getprevious() is not None:
+                previous = parent[0]
+                if isinstance(previous.tag, str) and _local(previous.tag) not in handlers:
+                    extras.append(_verbatim(previous))
+                del parent[0]
+        root = root if root is not None else self.source.root
+        if root is None:
             raise InputError("empty document, expected <OpenDRIVE>", file=self.source.name)
+        self.check_root(root)
+        for element in root:
+            if isinstance(element.tag, str) and _local(element.tag) not in handlers:
+                extras.append(_verbatim(element))
         if header is None:
             self.warnings.append(Diagnostic("no <header>; assuming OpenDRIVE 1.4 without georeference"))
             header = Header()
         self.check_links(roads, junctions)
         return OpenDriveMap(header, tuple(roads), tuple(junctions), tuple(controllers), self.source.name,
                             tuple(self.warnings), tuple(extras))
+
+    def check_root(self, root) -> None:
+        if _local(root.tag) != "OpenDRIVE":
+            raise self.error(f"root element is <{_local(root.tag)}>, expected <OpenDRIVE>", root)
 
     def header(self, element) -> Header:
         self.road_id = None
@@ -336,29 +355,35 @@ class _Reader:
 
     def lane(self, element, section_s0: float) -> Lane:
         lane_id = self.integer(element, "id", required=True)
-        link = self.child(element, "link")
         predecessor = successor = None
-        if link is not None:
-            p = self.child(link, "predecessor")
-            s = self.child(link, "successor")
-            predecessor = self.integer(p, "id", required=True) if p is not None else None
-            successor = self.integer(s, "id", required=True) if s is not None else None
-        widths = [self.cubic(e, "sOffset", section_s0) for e in self.children(element, "width")]
-        borders = [self.cubic(e, "sOffset", section_s0) for e in self.children(element, "border")]
-        heights = tuple(LaneHeight(section_s0 + self.number(h, "sOffset", 0.0), self.number(h, "inner", 0.0),
-                                   self.number(h, "outer", 0.0)) for h in self.children(element, "height"))
-        marks = tuple(self.road_mark(m, section_s0) for m in self.children(element, "roadMark"))
-        records = tuple(
-            LaneRecord(_local(r.tag), section_s0 + self.number(r, "sOffset", 0.0), dict(r.attrib),
-                       tuple(_verbatim(c) for c in r if isinstance(c.tag, str)))
-            for r in element if _local(r.tag) in ("speed", "access", "material", "visibility", "rule"))
+        widths, borders, heights, marks, records, unknown = [], [], [], [], [], []
+        # one pass over the children: lanes are the most numerous element of a map
+        for child in element:
+            tag = child.tag
+            if tag == "width":
+                widths.append(self.cubic(child, "sOffset", section_s0))
+            elif tag == "roadMark":
+                marks.append(self.road_mark(child, section_s0))
+            elif tag == "link":
+                p = child.find("predecessor")
+                n = child.find("successor")
+                predecessor = self.integer(p, "id", required=True) if p is not None else None
+                successor = self.integer(n, "id", required=True) if n is not None else None
+            elif tag == "border":
+                borders.append(self.cubic(child, "sOffset", section_s0))
+            elif tag == "height":
+                heights.append(LaneHeight(section_s0 + self.number(child, "sOffset", 0.0),
+                                          self.number(child, "inner", 0.0), self.number(child, "outer", 0.0)))
+            elif tag in _LANE_RECORDS:
+                records.append(LaneRecord(tag, section_s0 + self.number(child, "sOffset", 0.0), dict(child.attrib),
+                                          tuple(_verbatim(c) for c in child if isinstance(c.tag, str))))
+            elif isinstance(tag, str):
+                unknown.append(_verbatim(child))
         level = element.get("level", "false").lower() in ("true", "1")
-        lane_type = element.get("type", "none")
         return Lane(
-            lane_id, lane_type, level, predecessor, successor, CubicProfile.from_records(widths, extend_first=True),
-            CubicProfile.from_records(borders, extend_first=True), heights, marks, records, self.line(element), dict(element.attrib),
-            self.unknown(element, {"link", "width", "border", "height", "roadMark", "speed", "access", "material",
-                                   "visibility", "rule"}),
+            lane_id, element.get("type", "none"), level, predecessor, successor,
+            CubicProfile.from_records(widths, extend_first=True), CubicProfile.from_records(borders, extend_first=True),
+            tuple(heights), tuple(marks), tuple(records), self.line(element), dict(element.attrib), tuple(unknown),
         )
 
     def road_mark(self, element, section_s0: float) -> RoadMark:

@@ -1,0 +1,122 @@
+"""Vector layers of an OpenDRIVE map, after GDAL's XODR driver: reference-line, lane-border, lane-center,
+lane (polygons), road-mark, object, signal. Each layer yields features (geometry in local x, y, z plus
+properties); the export command transforms and writes them."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tavf_mapkit.opendrive.sampling import sample_lanes, section_samples
+
+LAYERS = ("reference-line", "lane-border", "lane-center", "lane", "road-mark", "object", "signal")
+
+
+@dataclass(frozen=True)
+class Feature:
+    kind: str  # "LineString", "Polygon", "Point"
+    coordinates: np.ndarray  # (n, 3)
+    properties: dict
+
+
+def _lane_runs(sampling):
+    """Slices of the pair arrays, one per lane row (pairs are stored lane by lane)."""
+    lane = sampling.pair_lane
+    if not len(lane):
+        return []
+    cuts = np.flatnonzero(np.diff(lane)) + 1
+    starts = np.concatenate([[0], cuts])
+    ends = np.concatenate([cuts, [len(lane)]])
+    return list(zip(starts, ends))
+
+
+def reference_line_features(odr, step: float):
+    arrays = odr.arrays
+    for index, road in enumerate(odr.roads):
+        if road.length <= 0:
+            continue
+        s = np.append(np.arange(0.0, road.length, step), road.length)
+        points = road.surface_point(s, 0.0)
+        yield Feature("LineString", points, {"road": road.id, "name": road.name, "junction": road.junction,
+                                              "length": road.length})
+    del arrays
+
+
+def lane_features(odr, step: float, layer: str):
+    sampling = sample_lanes(odr, step)
+    road_ids = [road.id for road in odr.roads]
+    if layer == "lane-border":
+        points = sampling.outer_border_points()
+    elif layer == "lane-center":
+        points = sampling.center_points()
+    else:
+        outer = sampling.outer_border_points()
+        inner = sampling.points_at(sampling.t_inner)
+    for start, end in _lane_runs(sampling):
+        if end - start < 2:
+            continue
+        properties = {"road": road_ids[sampling.road_index[start]], "section_s0": float(sampling.section_s0[start]),
+                      "lane": int(sampling.lane_id[start]), "type": str(sampling.lane_type[start])}
+        if layer == "lane":
+            ring = np.concatenate([inner[start:end], outer[start:end][::-1], inner[start:start + 1]])
+            yield Feature("Polygon", ring, properties)
+        else:
+            yield Feature("LineString", points[start:end], properties)
+
+
+def road_mark_features(odr, step: float):
+    sampling = sample_lanes(odr, step)
+    border = sampling.outer_border_points()
+    road_ids = [road.id for road in odr.roads]
+    for start, end in _lane_runs(sampling):
+        road = odr.roads[sampling.road_index[start]]
+        section = road.lane_sections[int(np.searchsorted(road.section_starts, sampling.section_s0[start],
+                                                          side="right") - 1)]
+        lane = section.by_id[int(sampling.lane_id[start])]
+        s = sampling.s[start:end]
+        marks = [m for m in lane.road_marks if m.type not in ("none", "")]
+        for k, mark in enumerate(marks):
+            s_end = marks[k + 1].s_offset if k + 1 < len(marks) else np.inf
+            keep = (s >= mark.s_offset - 1e-9) & (s <= s_end + 1e-9)
+            if keep.sum() < 2:
+                continue
+            yield Feature("LineString", border[start:end][keep], {
+                "road": road_ids[sampling.road_index[start]], "lane": lane.id, "type": mark.type,
+                "color": mark.color, "width": mark.width, "s_offset": mark.s_offset})
+
+
+def object_features(odr):
+    for road in odr.roads:
+        for o in road.objects:
+            point = road.surface_point([o.s], o.t, o.z_offset)[0]
+            yield Feature("Point", point[None, :], {
+                "road": road.id, "id": o.id, "type": o.type, "name": o.name, "s": o.s, "t": o.t,
+                "length": o.length, "width": o.width, "height": o.height, "radius": o.radius, "hdg": o.hdg})
+
+
+def signal_features(odr):
+    for road in odr.roads:
+        for signal in road.signals:
+            point = road.surface_point([signal.s], signal.t, signal.z_offset)[0]
+            yield Feature("Point", point[None, :], {
+                "road": road.id, "id": signal.id, "type": signal.type, "subtype": signal.subtype,
+                "country": signal.country, "dynamic": signal.dynamic, "value": signal.value, "name": signal.name,
+                "s": signal.s, "t": signal.t, "orientation": signal.orientation})
+
+
+def layer_features(odr, layer: str, step: float):
+    if layer == "reference-line":
+        return reference_line_features(odr, step)
+    if layer in ("lane-border", "lane-center", "lane"):
+        return lane_features(odr, step, layer)
+    if layer == "road-mark":
+        return road_mark_features(odr, step)
+    if layer == "object":
+        return object_features(odr)
+    if layer == "signal":
+        return signal_features(odr)
+    raise ValueError(f"unknown layer {layer!r}; choose from {', '.join(LAYERS)}")
+
+
+__all__ = ["LAYERS", "Feature", "layer_features", "section_samples"]

@@ -1,0 +1,44 @@
+"""What a running stage sees: the folder it writes into, the artifacts so far, options and earlier facts."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from tavf_mapkit.pipeline.config import PipelineConfig
+
+
+@dataclass
+class BuildContext:
+    """Shared state of one build. Artifacts are absolute paths; ``artifacts["input"]`` is the user's file.
+
+    ``input_kind`` is "osm" or "sumo-net". ``facts`` maps a stage name to the facts it reported (also for
+    stages reused from the previous build), so a later stage can read e.g. ``facts["extract"]["centre"]``.
+    """
+
+    name: str
+    folder: Path
+    input_path: Path
+    input_kind: str
+    config: PipelineConfig
+    artifacts: dict[str, Path] = field(default_factory=dict)
+    facts: dict[str, dict] = field(default_factory=dict)
+    notify: Callable[[str], None] = lambda message: None
+
+    def section(self, name: str) -> dict:
+        """The pipeline file's table ``[name]`` with command-line overrides applied."""
+        return self.config.section(name)
+
+    def output_path(self, relative: str) -> Path:
+        """Absolute path inside the build folder for a new output; its parent folder is created."""
+        path = self.folder / relative
+        path.parent.mkdir(parents=True, exist_ok=True)
+        return path
+
+    def log_path(self, stage: str) -> Path:
+        return self.output_path(f"logs/{stage}.log")
+
+    def note(self, message: str) -> None:
+        """A line for the person watching the build (progress output, not the manifest)."""
+        self.notify(message)

@@ -1,0 +1,143 @@
+"""The build report (report/summary.json) and the one-screen summary printed at the end of a build."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from tavf_mapkit.pipeline.manifest import OSM_ATTRIBUTION
+
+
+def opendrive_counts(xodr: Path) -> dict:
+    """Roads, junctions, signals, objects and total road length of an OpenDRIVE file (one streaming pass)."""
+    from lxml import etree
+
+    counts = {"roads": 0, "junctions": 0, "signals": 0, "objects": 0, "road_length_km": 0.0}
+    length = 0.0
+    context = etree.iterparse(str(xodr), events=("end",), tag=("road", "junction", "signal", "object"),
+                              resolve_entities=False, no_network=True, load_dtd=False, huge_tree=True)
+    for _event, element in context:
+        tag = element.tag
+        if tag == "road":
+            counts["roads"] += 1
+            length += float(element.get("length", 0.0) or 0.0)
+            element.clear()
+        elif tag == "junction" and element.getparent() is not None and element.getparent().tag == "OpenDRIVE":
+            counts["junctions"] += 1
+        elif tag == "signal":
+            counts["signals"] += 1
+        elif tag == "object":
+            counts["objects"] += 1
+    counts["road_length_km"] = round(length / 1000, 3)
+    return counts
+
+
+def build_report(context) -> dict:
+    """Everything the report shows, from the artifacts and the facts of the stages before it."""
+    extract = context.facts.get("extract", {})
+    netconvert = context.facts.get("netconvert", {})
+    report = {
+        "name": context.name,
+        "input": {"file": context.input_path.name, "kind": context.input_kind},
+        "attribution": OSM_ATTRIBUTION if _derived_from_osm(context) else None,
+    }
+    if context.input_kind == "osm" and extract:
+        report["osm"] = {key: extract.get(key) for key in (
+            "nodes", "ways", "relations", "highway_ways", "traffic_signals", "traffic_signs", "buildings",
+            "turn_restrictions", "bbox", "centre", "area")}
+    elif extract:
+        report["sumo_input"] = {key: extract.get(key) for key in (
+            "edges", "lanes", "junctions", "traffic_lights", "location")}
+    if netconvert:
+        report["netconvert"] = {key: netconvert.get(key) for key in (
+            "netconvert", "profile", "projection", "warnings", "warning_kinds", "warnings_by_kind", "notes")}
+        report["georeference"] = netconvert.get("georeference")
+    for name, facts in context.facts.items():
+        if name not in ("extract", "netconvert", "report") and isinstance(facts, dict):
+            report.setdefault("stages", {})[name] = facts
+            if facts.get("georeference"):
+                report["georeference"] = facts["georeference"]
+    if "xodr" in context.artifacts:
+        report["opendrive"] = {"file": context.artifacts["xodr"].name, **opendrive_counts(context.artifacts["xodr"])}
+    if "net" in context.artifacts:
+        from tavf_mapkit.sumonet import check_sumo_net
+
+        net = check_sumo_net(context.artifacts["net"])
+        report["sumo_net"] = {"file": context.artifacts["net"].name,
+                              **{key: net[key] for key in ("edges", "lanes", "junctions", "traffic_lights")}}
+    return report
+
+
+def report_text(report: dict) -> str:
+    """The content part of the summary: what the build holds (no timings, no stage statuses)."""
+    lines = []
+    osm = report.get("osm")
+    if osm:
+        highway = sum((osm.get("highway_ways") or {}).values())
+        lines.append(f"input   {report['input']['file']}: {osm['nodes']} nodes, {osm['ways']} ways "
+                     f"({highway} highway), {osm['buildings']} buildings, {osm['traffic_signals']} signal nodes, "
+                     f"{osm['traffic_signs']} signs, {osm['turn_restrictions']} turn restrictions")
+        if osm.get("area"):
+            lines.append(f"area    {osm['area']['description']}")
+    sumo_input = report.get("sumo_input")
+    if sumo_input:
+        lines.append(f"input   {report['input']['file']}: SUMO network, {sumo_input['edges']} edges, "
+                     f"{sumo_input['junctions']} junctions, {sumo_input['traffic_lights']} traffic lights")
+    opendrive = report.get("opendrive")
+    if opendrive:
+        lines.append(f"xodr    {opendrive['file']}: {opendrive['roads']} roads ({opendrive['road_length_km']:.1f} km), "
+                     f"{opendrive['junctions']} junctions, {opendrive['signals']} signals, "
+                     f"{opendrive['objects']} objects")
+    net = report.get("sumo_net")
+    if net:
+        lines.append(f"net     {net['file']}: {net['edges']} edges, {net['lanes']} lanes, {net['junctions']} junctions, "
+                     f"{net['traffic_lights']} traffic lights")
+    netconvert = report.get("netconvert")
+    if netconvert:
+        lines.append(f"netconvert  {netconvert['netconvert']}, profile {netconvert['profile']}: "
+                     f"{netconvert['warnings']} warnings of {netconvert['warning_kinds']} kinds (logs/netconvert.log)")
+        for kind, count in list((netconvert.get("warnings_by_kind") or {}).items())[:3]:
+            lines.append(f"    {count:4d} x {_shorten(kind, 88)}")
+        for note in netconvert.get("notes") or []:
+            lines.append(f"    note: {_shorten(note, 100)}")
+    georeference = report.get("georeference")
+    if georeference:
+        offset = georeference.get("offset") or {}
+        lines.append(f"geo     {georeference.get('proj')}")
+        if offset:
+            lines.append(f"        offset x={offset.get('x')} y={offset.get('y')} (projected = local + offset)")
+    if report.get("attribution"):
+        lines.append(f"data    {report['attribution']}")
+    return "\n".join(lines)
+
+
+def render_summary(manifest: dict, folder: Path) -> str:
+    """The one-screen summary: where, how long, each stage's status, then the report's content."""
+    stages = manifest.get("stages", [])
+    lines = [f"built {folder} in {manifest.get('seconds', 0):.2f} s"]
+    for record in stages:
+        status = record["status"]
+        seconds = f" {record['seconds']:.2f} s" if status == "ran" else ""
+        note = f" ({record['note']})" if record.get("note") else ""
+        lines.append(f"  {record['name']:<11} {status}{seconds}{note}")
+    report_path = folder / "report" / "summary.json"
+    if report_path.is_file():
+        try:
+            lines.append(report_text(json.loads(report_path.read_text(encoding="utf-8"))))
+        except ValueError:
+            pass
+    return "\n".join(lines)
+
+
+def _derived_from_osm(context) -> bool:
+    """OSM input, or a SUMO network imported from OSM (OSM edge types, an OSM file in its configuration)."""
+    if context.input_kind == "osm":
+        return True
+    from tavf_mapkit.sumonet import read_net_bytes
+
+    head = read_net_bytes(context.input_path)[: 1 << 22]
+    return b'type="highway.' in head or b"osm-files" in head or b"openstreetmap" in head.lower()
+
+
+def _shorten(text: str, width: int) -> str:
+    return text if len(text) <= width else text[: width - 1] + "…"

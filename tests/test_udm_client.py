@@ -1,0 +1,217 @@
+"""UdmClient against the real server and against deliberately broken ones: it counts, it never raises."""
+
+from __future__ import annotations
+
+import asyncio
+import csv
+import itertools
+import math
+import socket
+import time
+
+import pytest
+from starlette.applications import Starlette
+from starlette.responses import JSONResponse, Response
+from starlette.routing import Route
+
+from twin.udm.client import (
+    HTTP_5XX,
+    INVALID_FIX,
+    MALFORMED,
+    OK,
+    TIMEOUT,
+    UNREACHABLE,
+    LatencyLog,
+    UdmClient,
+)
+from twin.udm.loadgen import LoadPlan, is_loopback_url, run_load
+from twin.udm.model import UdmObject, square_around
+from twin.udm.server import ServerThread, create_app
+from twin.udm.store import SqliteRtreeStore
+
+HAMBURG = (53.55, 9.99)
+
+
+def wait_for(client: UdmClient, count: int, timeout_s: float = 5.0) -> list:
+    responses = []
+    deadline = time.monotonic() + timeout_s
+    while len(responses) < count and time.monotonic() < deadline:
+        responses += client.poll()
+        time.sleep(0.005)
+    return responses
+
+
+@pytest.fixture(scope="module")
+def udm():
+    store = SqliteRtreeStore()
+    store.upsert([
+        UdmObject(id=f"sign-{i}", layer=2 if i % 2 else 4, type="traffic_sign" if i % 3 else "vehicle",
+                  lat=HAMBURG[0] + 0.0001 * (i - 10), lon=HAMBURG[1] + 0.0001 * (i - 10))
+        for i in range(21)
+    ])
+    with ServerThread(create_app(store, "token")) as server:
+        yield server.url, store
+    store.close()
+
+
+def fault_server(handler):
+    """A one-route server standing in for a broken UDM; answers every path with ``handler``."""
+    app = Starlette(routes=[Route("/{path:path}", handler)])
+    return ServerThread(app)
+
+
+def closed_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def test_answers_match_the_store_and_carry_both_latencies(udm, tmp_path):
+    url, store = udm
+    with UdmClient(url) as client:
+        t_publish = time.monotonic()
+        assert client.submit(*HAMBURG, side_m=200.0, frame=7, t_publish=t_publish)
+        (response,) = wait_for(client, 1)
+        stats = client.stats()
+    assert response.status == OK and response.frame == 7 and response.attempts == 1
+    expected = {o.id for o in store.in_bbox(square_around(*HAMBURG, 200.0))}
+    assert expected and {o.id for o in response.objects} == expected
+    assert 0 < response.client_latency_s <= response.loop_latency_s < 5.0
+    assert response.t_publish == t_publish <= response.t_sent <= response.t_received
+    assert (stats.submitted, stats.ok, stats.requests, stats.error_count) == (1, 1, 1, 0)
+
+    with LatencyLog(tmp_path) as log:
+        log.write(response)
+    rows = list(csv.DictReader((tmp_path / "udm_latency.csv").open()))
+    assert list(rows[0]) == list(LatencyLog.COLUMNS)
+    assert rows[0]["frame"] == "7" and rows[0]["status"] == "ok"
+    assert int(rows[0]["n_objects"]) == len(expected)
+    assert math.isclose(float(rows[0]["client_latency_s"]), response.client_latency_s, abs_tol=1e-6)
+
+
+def test_layer_and_type_filters_reach_the_server(udm):
+    url, _ = udm
+    with UdmClient(url, layers=(4,), types=("vehicle",)) as client:
+        client.submit(*HAMBURG, side_m=500.0, frame=1)
+        (response,) = wait_for(client, 1)
+    assert response.ok and response.objects
+    assert all(o.layer == 4 and o.type == "vehicle" for o in response.objects)
+
+
+def test_many_frames_in_order_with_a_full_queue_dropping_the_oldest(udm):
+    url, _ = udm
+    with UdmClient(url, queue_size=4) as client:
+        for frame in range(200):
+            client.submit(*HAMBURG, frame=frame)
+        assert client.flush(10.0)
+        responses = client.poll()
+        stats = client.stats()
+    frames = [r.frame for r in responses]
+    assert frames == sorted(frames) and frames[-1] == 199  # the newest query is never the one dropped
+    assert stats.dropped == 200 - len(responses) and stats.submitted == 200
+    assert all(r.ok for r in responses)
+
+
+def test_unreachable_server_is_counted_and_retried_without_raising():
+    with UdmClient(f"http://127.0.0.1:{closed_port()}", max_retries=2, backoff_s=0.01) as client:
+        started = time.perf_counter()
+        assert client.submit(*HAMBURG, frame=1)
+        assert time.perf_counter() - started < 0.01
+        (response,) = wait_for(client, 1)
+        stats = client.stats()
+    assert response.status == UNREACHABLE and response.attempts == 3 and response.objects == ()
+    assert "ConnectError" in response.error
+    assert stats.errors == {UNREACHABLE: 1} and stats.retries == 2 and stats.requests == 3
+
+
+def test_slow_server_times_out_while_submit_never_blocks():
+    async def sleepy(request):
+        await asyncio.sleep(5.0)
+        return JSONResponse({"type": "FeatureCollection", "features": []})
+
+    with fault_server(sleepy) as server:
+        client = UdmClient(server.url, timeout_s=0.2, max_retries=0, queue_size=4)
+        submit_times = []
+        for frame in range(30):  # the worker is stuck in the first request meanwhile
+            started = time.perf_counter()
+            client.submit(*HAMBURG, frame=frame)
+            submit_times.append(time.perf_counter() - started)
+        assert max(submit_times) < 0.01
+        responses = wait_for(client, 2, timeout_s=3.0)
+        closing = time.perf_counter()
+        client.close()
+        assert time.perf_counter() - closing < 1.0
+        stats = client.stats()
+    assert responses and all(r.status == TIMEOUT for r in responses)
+    assert all(0.2 <= r.client_latency_s < 1.0 for r in responses)
+    assert stats.errors[TIMEOUT] >= 2 and stats.dropped >= 30 - 4 - 1
+    assert not client._thread.is_alive()
+
+
+def test_http_500_is_retried_a_bounded_number_of_times():
+    hits = []
+
+    async def broken(request):
+        hits.append(time.monotonic())
+        return Response("database on fire", status_code=500)
+
+    with fault_server(broken) as server, UdmClient(server.url, max_retries=3, backoff_s=0.02,
+                                                   max_backoff_s=0.05) as client:
+        client.submit(*HAMBURG, frame=1)
+        (response,) = wait_for(client, 1)
+        stats = client.stats()
+    assert response.status == HTTP_5XX and response.http_status == 500 and response.attempts == 4
+    assert len(hits) == 4 and stats.errors == {HTTP_5XX: 1} and stats.retries == 3
+    gaps = [later - earlier for earlier, later in itertools.pairwise(hits)]
+    assert gaps[0] >= 0.02 and gaps[-1] >= 0.05 * 0.9  # backoff grew and was capped
+
+
+@pytest.mark.parametrize("body", [b"{this is not json", b'{"hello": "world"}',
+                                  b'{"type": "FeatureCollection", "features": [{"type": "Feature"}]}'])
+def test_malformed_answers_are_counted_not_retried(body):
+    hits = []
+
+    async def garbled(request):
+        hits.append(1)
+        return Response(body, media_type="application/json")
+
+    with fault_server(garbled) as server, UdmClient(server.url, max_retries=3) as client:
+        client.submit(*HAMBURG, frame=1)
+        (response,) = wait_for(client, 1)
+    assert response.status == MALFORMED and response.objects == () and len(hits) == 1
+    assert client.stats().errors == {MALFORMED: 1}
+
+
+def test_bad_fixes_and_use_after_close_do_not_raise(udm):
+    url, _ = udm
+    client = UdmClient(url)
+    assert client.submit(math.nan, 9.99, frame=1) is False
+    assert client.submit(53.55, math.inf, frame=2) is False
+    responses = client.poll()
+    assert [r.status for r in responses] == [INVALID_FIX, INVALID_FIX]
+    client.close()
+    assert client.submit(*HAMBURG, frame=3) is False
+    assert client.poll() == []
+    client.close()  # closing twice is harmless
+
+
+def test_load_generator_reports_latency_against_the_real_server(udm):
+    url, _ = udm
+    report = run_load(LoadPlan(url=url, vehicles=5, rate_hz=20.0, duration_s=0.5, area_radius_m=150.0))
+    assert report["errors"] == 0 and report["ok"] == report["requests"]
+    assert 0 < report["requests"] <= 5 * 20 * 0.5 + 5  # bounded by vehicles x rate x duration (+ phase)
+    latency = report["latency_ms"]
+    assert 0 < latency["p50"] <= latency["p95"] <= latency["max"]
+    assert report["objects_per_response"] > 0
+
+
+def test_load_generator_counts_unreachable_and_only_trusts_loopback():
+    report = run_load(LoadPlan(url=f"http://127.0.0.1:{closed_port()}", vehicles=2, rate_hz=10.0,
+                               duration_s=0.3))
+    assert report["ok"] == 0 and report["errors"] == report["requests"] > 0
+    assert set(report["errors_by_kind"]) == {UNREACHABLE}
+    assert is_loopback_url("http://127.0.0.1:8765") and is_loopback_url("http://localhost:1")
+    assert is_loopback_url("http://[::1]:80")
+    assert not is_loopback_url("http://192.168.1.10:8765") and not is_loopback_url("http://udm.example.com")
+    with pytest.raises(ValueError):
+        LoadPlan(url="http://127.0.0.1:1", vehicles=10_000).check()

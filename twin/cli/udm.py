@@ -1,0 +1,136 @@
+"""``twin udm``: run a local Urban Dynamic Map and measure how fast it answers a fleet."""
+
+from __future__ import annotations
+
+import json
+import secrets
+import sqlite3
+from pathlib import Path
+
+import click
+
+from tavf_mapkit.errors import InputError
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+def udm() -> None:
+    """A local Urban Dynamic Map (UDM): an HTTP service of map objects near the car.
+
+    \b
+    $ twin udm serve --seed build/sample --token s3cret
+    $ curl 'http://127.0.0.1:8765/objects?lat=53.55&lon=9.99&radius=150'
+    $ twin udm bench-load --url http://127.0.0.1:8765 --vehicles 50 --rate 10 --duration 60
+
+    The API, layers and error codes are described in docs/udm-api.md and served at /openapi.json.
+    """
+
+
+@udm.command()
+@click.option("--db", "db_path", type=click.Path(dir_okay=False, path_type=Path),
+              help="SQLite file to keep objects in (created if missing). Default: in memory, gone on exit.")
+@click.option("--host", default="127.0.0.1", show_default=True,
+              help="Address to listen on. Keep the loopback default unless other machines must reach it.")
+@click.option("--port", default=8765, show_default=True, type=click.IntRange(0, 65535),
+              help="TCP port; 0 picks a free one (the URL line printed at start says which).")
+@click.option("--token", envvar="TWIN_UDM_TOKEN", show_envvar=True,
+              help="Bearer token data providers need for POST/DELETE. Default: a random one, printed at "
+                   "start.")
+@click.option("--seed", "seed_dir", type=click.Path(file_okay=False, path_type=Path),
+              help="Build folder whose traffic signs and signals (OSM nodes, signals.geojson) become layer-2 "
+                   "objects before serving.")
+@click.option("--purge-interval", default=60.0, show_default=True, type=click.FloatRange(min=0.1),
+              help="Seconds between deletions of expired objects (queries never return them anyway).")
+@click.option("--log-level", default="warning", show_default=True,
+              type=click.Choice(["critical", "error", "warning", "info", "debug"]),
+              help="uvicorn and UDM log level.")
+def serve(db_path: Path | None, host: str, port: int, token: str | None, seed_dir: Path | None,
+          purge_interval: float, log_level: str) -> None:
+    """Serve the UDM over HTTP until Ctrl-C.
+
+    \b
+    $ twin udm serve --seed build/sample
+    UDM http://127.0.0.1:8765  store=memory  objects=412  (seeded: osm 412, signals.geojson 0)
+    token: 8fa2...  (set --token or TWIN_UDM_TOKEN to choose one)
+
+    Reads are open to anyone who can reach the port; writes need 'Authorization: Bearer TOKEN':
+
+    \b
+    $ curl -X POST -H "Authorization: Bearer $TOKEN" -H 'Content-Type: application/geo+json' \\
+        -d @roadworks.geojson http://127.0.0.1:8765/objects
+    """
+    from twin.udm.seed import seed_from_build
+    from twin.udm.server import create_app, run_server
+    from twin.udm.store import IN_MEMORY, SqliteRtreeStore
+
+    generated = not token
+    token = token or secrets.token_urlsafe(24)
+    if db_path is not None and not db_path.parent.is_dir():
+        raise InputError("the folder for the --db file does not exist", file=str(db_path))
+    try:
+        store = SqliteRtreeStore(db_path if db_path is not None else IN_MEMORY)
+    except sqlite3.Error as error:  # not a database, locked, unreadable
+        raise InputError(f"cannot open the UDM database: {error}", file=str(db_path)) from None
+    seeded = seed_from_build(store, seed_dir) if seed_dir is not None else None
+
+    def announce(url: str) -> None:
+        summary = f"UDM {url}  store={db_path or 'memory'}  objects={store.count()}"
+        if seeded is not None:
+            summary += "  (seeded: " + ", ".join(f"{name} {count}" for name, count in seeded.items()) + ")"
+        # The URL line comes first and is flushed: scripts (and the benchmark) read the port from it.
+        click.echo(summary)
+        if generated:
+            click.echo(f"token: {token}  (set --token or TWIN_UDM_TOKEN to choose one)")
+        click.get_text_stream("stdout").flush()
+
+    try:
+        run_server(create_app(store, token, purge_interval_s=purge_interval), host, port,
+                   on_listening=announce, log_level=log_level)
+    except OSError as error:
+        raise InputError(f"cannot listen on {host}:{port}: {error.strerror or error}") from None
+    finally:
+        store.close()
+
+
+@udm.command("bench-load")
+@click.option("--url", default="http://127.0.0.1:8765", show_default=True, help="Base URL of the UDM.")
+@click.option("--vehicles", default=50, show_default=True, type=click.IntRange(1, 1000),
+              help="Simulated vehicles, each with at most one request in flight.")
+@click.option("--rate", default=10.0, show_default=True, type=click.FloatRange(0.1, 100.0),
+              help="Queries per second per vehicle.")
+@click.option("--duration", default=60.0, show_default=True, type=click.FloatRange(0.1, 3600.0),
+              help="Seconds to run.")
+@click.option("--lat", default=53.55, show_default=True, type=click.FloatRange(-85.0, 85.0),
+              help="Centre of the area the fleet drives in.")
+@click.option("--lon", default=9.99, show_default=True, type=click.FloatRange(-180.0, 180.0))
+@click.option("--area-radius", default=3000.0, show_default=True, type=click.FloatRange(0.0, 50_000.0),
+              help="Metres from the centre the vehicles stay within.")
+@click.option("--side", default=200.0, show_default=True, type=click.FloatRange(1.0, 10_000.0),
+              help="Side in metres of the square each vehicle asks for.")
+@click.option("--timeout", default=1.0, show_default=True, type=click.FloatRange(0.01, 60.0),
+              help="Seconds before a request counts as a timeout.")
+@click.option("--seed", default=0, show_default=True, help="Random seed for the vehicles' routes.")
+@click.option("--allow-remote", is_flag=True,
+              help="Permit a URL that is not loopback. Only load a server you run yourself.")
+def bench_load(url: str, vehicles: int, rate: float, duration: float, lat: float, lon: float,
+               area_radius: float, side: float, timeout: float, seed: int, allow_remote: bool) -> None:
+    """Load a UDM with a simulated fleet and print latency percentiles as JSON.
+
+    \b
+    $ twin udm bench-load --url http://127.0.0.1:8765 --vehicles 50 --rate 10 --duration 60
+    {"requests": 29950, "ok": 29950, "errors": 0, "latency_ms": {"p50": 2.1, "p95": 6.4, ...}, ...}
+
+    Requests are bounded by vehicles x rate x duration; a vehicle whose previous answer is late skips
+    ticks (counted as skipped_ticks) rather than queueing more requests. For repeatable numbers with a
+    server started for you, see benchmarks/bench_udm_load.py.
+    """
+    from twin.udm.loadgen import LoadPlan, is_loopback_url, run_load
+
+    if not is_loopback_url(url):
+        if not url.startswith(("http://", "https://")):
+            raise InputError(f"--url {url!r} is not an http(s) URL")
+        if not allow_remote:
+            raise InputError(f"--url {url!r} is not a loopback address; pass --allow-remote if you run "
+                             "that server")
+    plan = LoadPlan(url=url, vehicles=vehicles, rate_hz=rate, duration_s=duration, lat=lat, lon=lon,
+                    area_radius_m=area_radius, side_m=side, timeout_s=timeout, seed=seed)
+    click.echo(json.dumps(run_load(plan), indent=2))
