@@ -36,6 +36,7 @@ CRS_CHOICES = ("tmerc", "utm", "keep")
 _ALWAYS = ["--xml-validation=never", "--xml-validation.net=never", "--aggregate-warnings=-1"]
 _QUOTED = re.compile(r"'[^']*'")
 _NUMBER = re.compile(r"(?<![A-Za-z_])-?\d+(?:\.\d+)?")
+_NUMBER_RUN = re.compile(r"#(?:[#,]*#)?")
 
 
 @functools.lru_cache(maxsize=1)
@@ -204,7 +205,8 @@ class Messages:
 
 def warning_kind(message: str) -> str:
     """A warning with its ids and numbers replaced, so repeats of one problem count as one kind."""
-    return _NUMBER.sub("#", _QUOTED.sub("'%'", message.strip()))
+    numbered = _NUMBER.sub("#", _QUOTED.sub("'%'", message.strip()))
+    return _NUMBER_RUN.sub("#", numbered)  # "23182274#3" or "-794,-795" -> "#"
 
 
 # --------------------------------------------------------------------------------------------- running

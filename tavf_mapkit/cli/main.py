@@ -14,6 +14,7 @@ COMMANDS = {
     "info": "tavf_mapkit.cli.info:info",
     "export": "tavf_mapkit.cli.export:export",
     "extract": "tavf_mapkit.cli.extract:extract",
+    "build": "tavf_mapkit.cli.build:build",
 }
 
 

@@ -39,7 +39,7 @@ def build_report(context) -> dict:
     report = {
         "name": context.name,
         "input": {"file": context.input_path.name, "kind": context.input_kind},
-        "attribution": OSM_ATTRIBUTION if _derived_from_osm(context) else None,
+        "attribution": OSM_ATTRIBUTION if derived_from_osm(context.input_path, context.input_kind) else None,
     }
     if context.input_kind == "osm" and extract:
         report["osm"] = {key: extract.get(key) for key in (
@@ -129,13 +129,13 @@ def render_summary(manifest: dict, folder: Path) -> str:
     return "\n".join(lines)
 
 
-def _derived_from_osm(context) -> bool:
+def derived_from_osm(input_path: Path, kind: str) -> bool:
     """OSM input, or a SUMO network imported from OSM (OSM edge types, an OSM file in its configuration)."""
-    if context.input_kind == "osm":
+    if kind == "osm":
         return True
     from tavf_mapkit.sumonet import read_net_bytes
 
-    head = read_net_bytes(context.input_path)[: 1 << 22]
+    head = read_net_bytes(input_path)[: 1 << 22]
     return b'type="highway.' in head or b"osm-files" in head or b"openstreetmap" in head.lower()
 
 

@@ -1,0 +1,90 @@
+"""``mapkit build``: OSM or a SUMO network -> a build folder (OpenDRIVE, SUMO net, meshes, report)."""
+
+from __future__ import annotations
+
+import json
+import shlex
+import sys
+from pathlib import Path
+
+import click
+
+from tavf_mapkit.cli.options import area_from, bbox_option, json_option, polygon_option
+
+
+@click.command(short_help="Build a simulation world from OSM or a SUMO network.")
+@click.argument("input_path", metavar="INPUT", type=click.Path(path_type=Path))
+@click.option("--pipeline", "pipeline_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              metavar="PIPELINE.toml", help="Pipeline file (stages, area, profile, stage options).")
+@bbox_option
+@polygon_option
+@click.option("--profile", default=None, metavar="carla|full|FILE.toml",
+              help="netconvert option profile (default: the pipeline's, else carla).")
+@click.option("--crs", type=click.Choice(["tmerc", "utm", "keep"]), default=None,
+              help="Projection: tmerc centred on the data (default), utm, or keep a SUMO network's own.")
+@click.option("-o", "--output", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Build folder (default: build/NAME, NAME from the pipeline or the input file).")
+@click.option("--force", is_flag=True, help="Rerun every stage even if its inputs and options are unchanged.")
+@click.option("-q", "--quiet", is_flag=True, help="No progress lines.")
+@json_option
+def build(input_path: Path, pipeline_file: Path | None, bbox, polygon: Path | None, profile: str | None,
+          crs: str | None, output: Path | None, force: bool, quiet: bool, as_json: bool) -> None:
+    """Build a driving-simulation world from OSM or a SUMO network.
+
+    \b
+    $ mapkit build sample_data/tavf_synthetic.osm
+    $ mapkit build hamburg.osm.pbf --pipeline pipelines/tavf.toml -o build/tavf
+    $ mapkit build network.net.xml.gz --profile full --crs keep --json
+
+    \b
+    Stages: extract -> netconvert -> opendrive -> mesh -> collision -> check -> report
+    (stages not installed yet are skipped with a note). The build folder holds NAME.xodr,
+    NAME.net.xml, mesh/, collision/, report/, logs/ and manifest.json (docs/build-folder.md).
+    It is built next to the target and swapped in when complete: a failed or interrupted build
+    leaves an existing build untouched. Stages whose inputs and options did not change since the
+    last build are reused (--force reruns them).
+
+    \b
+    Exit codes: 0 ok, 1 a stage failed, 2 bad input or options, 130 interrupted.
+    """
+    from tavf_mapkit.pipeline.config import load_pipeline
+    from tavf_mapkit.pipeline.runner import run_build
+    from tavf_mapkit.pipeline.summary import render_summary
+
+    area = area_from(bbox, polygon)
+    config = load_pipeline(pipeline_file)
+    if area is not None:
+        if area.polygon is not None:
+            config = config.with_overrides(polygon=polygon, profile=profile, crs=crs)
+        else:
+            config = config.with_overrides(bbox=area.bbox, profile=profile, crs=crs)
+    else:
+        config = config.with_overrides(profile=profile, crs=crs)
+
+    def progress(line: str) -> None:
+        if not quiet:
+            click.echo(line, err=True)
+
+    command = shlex.join(["mapkit", *sys.argv[1:]]) if sys.argv and sys.argv[0].endswith("mapkit") else None
+    result = run_build(input_path, config, output, force=force, progress=progress, command=command)
+    if as_json:
+        click.echo(json.dumps(_json_summary(result), indent=2))
+    else:
+        click.echo(render_summary(result.manifest, result.folder))
+
+
+def _json_summary(result) -> dict:
+    manifest = result.manifest
+    report_path = result.folder / "report" / "summary.json"
+    report = json.loads(report_path.read_text(encoding="utf-8")) if report_path.is_file() else None
+    return {
+        "folder": str(result.folder),
+        "status": manifest["status"],
+        "seconds": manifest["seconds"],
+        "stages": [{key: record.get(key) for key in ("name", "status", "seconds", "note")}
+                   for record in manifest["stages"]],
+        "outputs": {artifact: str(result.folder / info["path"]) for artifact, info in manifest["artifacts"].items()},
+        "georeference": manifest.get("georeference"),
+        "attribution": manifest.get("attribution"),
+        "report": report,
+    }

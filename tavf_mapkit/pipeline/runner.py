@@ -1,0 +1,250 @@
+"""Run a pipeline into a build folder: reuse unchanged stages, run the rest, write manifest.json, swap.
+
+A stage is reused when its fingerprint -- name, code version, options and the sha256 of every artifact it
+reads -- equals the one recorded in the existing build's manifest; its outputs are then copied from the
+existing build (copies, not hard links: a later stage that rewrote a linked file in place would change
+the old build too, and the old build must stay intact until the new one is in place).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import resource
+import shutil
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from tavf_mapkit import __version__
+from tavf_mapkit.errors import InputError, MapkitError, StageError
+from tavf_mapkit.osm.files import OSM_SUFFIXES, is_osm_file
+from tavf_mapkit.pipeline.buildfolder import BuildFolder
+from tavf_mapkit.pipeline.config import PipelineConfig
+from tavf_mapkit.pipeline.context import BuildContext
+from tavf_mapkit.pipeline.manifest import (
+    MANIFEST_VERSION,
+    OSM_ATTRIBUTION,
+    canonical,
+    file_sha256,
+    fingerprint,
+    path_bytes,
+    path_sha256,
+    read_manifest,
+    stage_record,
+    tool_versions,
+    write_manifest,
+)
+from tavf_mapkit.pipeline.stages import get_stage, unavailable_modules
+from tavf_mapkit.sumonet import SUMO_NET_SUFFIXES, is_sumo_net
+
+EXIT_CODES = {0: "ok", 1: "a stage failed", 2: "bad input or options", 130: "interrupted"}
+
+
+@dataclass(frozen=True)
+class BuildResult:
+    folder: Path
+    manifest: dict
+
+
+def input_kind(path: Path) -> str:
+    """"osm" or "sumo-net" from the file name; anything else is refused."""
+    if is_osm_file(path):
+        return "osm"
+    if is_sumo_net(path):
+        return "sumo-net"
+    raise InputError(f"unknown input type: expected OSM ({', '.join(OSM_SUFFIXES)}) or a SUMO network "
+                     f"({', '.join(SUMO_NET_SUFFIXES)})", file=str(path))
+
+
+def default_build_name(input_path: Path, config: PipelineConfig) -> str:
+    """The pipeline's name if a pipeline file was given, else the input's name without its suffixes."""
+    if config.file is not None and config.name:
+        return config.name
+    name = input_path.name
+    for suffix in sorted((*OSM_SUFFIXES, *SUMO_NET_SUFFIXES), key=len, reverse=True):
+        if name.lower().endswith(suffix):
+            name = name[: -len(suffix)]
+            break
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in name) or "build"
+
+
+def run_build(input_path: str | Path, config: PipelineConfig, output: str | Path | None = None, *,
+              force: bool = False, progress: Callable[[str], None] | None = None,
+              command: str | None = None) -> BuildResult:
+    """Build ``input_path`` with ``config`` into ``output`` (default build/NAME); return the manifest."""
+    started = time.perf_counter()
+    progress = progress or (lambda line: None)
+    input_path = Path(input_path)
+    kind = input_kind(input_path)
+    if not input_path.is_file():
+        raise InputError("file not found" if not input_path.exists() else "is not a file", file=str(input_path))
+    target = Path(output) if output else Path("build") / default_build_name(input_path, config)
+    if target.name in ("", ".", ".."):
+        raise InputError("the build folder needs a name (e.g. -o build/tavf)", file=str(target))
+    name = target.name
+    input_record = {"role": "input", "path": str(input_path.resolve()), "kind": kind,
+                    "sha256": file_sha256(input_path), "bytes": input_path.stat().st_size}
+
+    with BuildFolder(target) as folder:
+        previous = None if force or folder.existing is None else read_manifest(folder.target)
+        context = BuildContext(name=name, folder=folder.staging, input_path=input_path.resolve(), input_kind=kind,
+                               config=config, artifacts={"input": input_path.resolve()}, notify=progress)
+        hashes = {"input": input_record["sha256"]}
+        records = []
+        for index, stage_name in enumerate(config.stages, 1):
+            record = _run_stage(stage_name, context, hashes, previous, folder.target, progress,
+                                f"[{index}/{len(config.stages)}]")
+            records.append(record)
+        _remove_failure_logs(folder.target)
+        manifest = _manifest(name, input_record, config, context, records, started, command)
+        write_manifest(folder.staging, manifest)
+        folder.commit()
+    return BuildResult(folder.target, manifest)
+
+
+def _run_stage(stage_name: str, context: BuildContext, hashes: dict, previous: dict | None, target: Path,
+               progress: Callable[[str], None], counter: str) -> dict:
+    stage = get_stage(stage_name)
+    if stage is None:
+        reason = unavailable_modules().get(stage_name)
+        note = f"stage {stage_name} not available" + (f": {reason}" if reason else "")
+        progress(f"{counter} {stage_name}: {note}")
+        return {"name": stage_name, "status": "unavailable", "note": note}
+    missing = [artifact for artifact in stage.inputs if artifact not in context.artifacts]
+    if missing:
+        note = f"needs {', '.join(missing)}, which no earlier stage made"
+        progress(f"{counter} {stage_name}: skipped, {note}")
+        return {"name": stage_name, "status": "skipped", "note": note}
+
+    used = {artifact: hashes[artifact] for artifact in (*stage.inputs, *stage.optional_inputs)
+            if artifact in context.artifacts}
+    started = time.perf_counter()
+    try:
+        options = canonical(stage.options(context))
+        stage_fingerprint = fingerprint(stage_name, stage.version, options, used)
+        old = stage_record(previous, stage_name)
+        if old and old.get("fingerprint") == stage_fingerprint and _copy_outputs(old, target, context.folder):
+            status, outputs, facts = "unchanged", old["outputs"], old.get("facts", {})
+        else:
+            result = stage.run(context)
+            status, facts = "ran", result.facts
+            outputs = {}
+            for artifact, relative in result.files.items():
+                path = context.folder / relative
+                if not path.exists():
+                    raise StageError(f"stage {stage_name} reported {relative} but did not write it")
+                outputs[artifact] = {"path": relative, "sha256": path_sha256(path), "bytes": path_bytes(path)}
+    except MapkitError as error:
+        _point_at_user_files(error, context)
+        _keep_failure_log(error, stage_name, context, target)
+        raise
+    except OSError as error:
+        raise StageError(f"stage {stage_name}: {error.strerror or error}",
+                         file=getattr(error, "filename", None)) from None
+    seconds = time.perf_counter() - started
+
+    for artifact, info in outputs.items():
+        context.artifacts[artifact] = context.folder / info["path"]
+        hashes[artifact] = info["sha256"]
+    context.facts[stage_name] = facts
+    wording = f"ran in {seconds:.2f} s" if status == "ran" else "unchanged, reused"
+    progress(f"{counter} {stage_name}: {wording}")
+    usage_self = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    usage_children = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    return {
+        "name": stage_name, "status": status, "version": stage.version, "fingerprint": stage_fingerprint,
+        "inputs": used, "options": options, "outputs": outputs, "facts": facts, "seconds": round(seconds, 4),
+        # ru_maxrss is in KiB on Linux; both are maxima so far in this build, not per stage
+        "peak_rss_mib": {"mapkit": round(usage_self / 1024, 1), "subprocesses": round(usage_children / 1024, 1)},
+    }
+
+
+def _copy_outputs(record: dict, previous: Path, staging: Path) -> bool:
+    """Copy a reused stage's outputs from the existing build; False if any is missing or changed size."""
+    outputs = record.get("outputs") or {}
+    for info in outputs.values():
+        source = previous / info["path"]
+        if not source.exists() or path_bytes(source) != info.get("bytes"):
+            return False
+    for info in outputs.values():
+        source, destination = previous / info["path"], staging / info["path"]
+        destination.parent.mkdir(parents=True, exist_ok=True)
+        if source.is_dir():
+            shutil.copytree(source, destination, dirs_exist_ok=True)
+        else:
+            shutil.copy2(source, destination)
+    return True
+
+
+def _point_at_user_files(error: MapkitError, context: BuildContext) -> None:
+    """Errors about the build's private copy of the input (source/...) name the user's file instead."""
+    if not error.file:
+        return
+    path = Path(error.file)
+    try:
+        (path if path.is_absolute() else context.folder / path).relative_to(context.folder / "source")
+    except ValueError:
+        return
+    error.file = str(context.input_path)
+
+
+def _keep_failure_log(error: MapkitError, stage_name: str, context: BuildContext, target: Path) -> None:
+    """The staging folder is about to be removed; keep the failed stage's log next to the build folder."""
+    log = context.folder / "logs" / f"{stage_name}.log"
+    if not log.is_file():
+        return
+    kept = target.parent / f"{target.name}.failed-{stage_name}.log"
+    try:
+        shutil.copyfile(log, kept)
+    except OSError:
+        return
+    error.message = f"{error.message} (log: {kept})"
+
+
+def _remove_failure_logs(target: Path) -> None:
+    for log in target.parent.glob(f"{target.name}.failed-*.log"):
+        log.unlink(missing_ok=True)
+
+
+def _manifest(name: str, input_record: dict, config: PipelineConfig, context: BuildContext, records: list[dict],
+              started: float, command: str | None) -> dict:
+    from tavf_mapkit.pipeline.summary import derived_from_osm
+
+    inputs = [input_record]
+    if config.file is not None:
+        inputs.append({"role": "pipeline", "path": str(config.file), "sha256": file_sha256(config.file),
+                       "bytes": config.file.stat().st_size})
+    for role, path in config.path_options().items():
+        exists = path.is_file()
+        inputs.append({"role": role, "path": str(path), "sha256": file_sha256(path) if exists else None,
+                       "bytes": path.stat().st_size if exists else None})
+    netconvert = context.facts.get("netconvert", {}).get("netconvert")
+    if netconvert is None and any(r.get("name") == "netconvert" for r in records):
+        from tavf_mapkit.netconvert import netconvert_version
+
+        netconvert = netconvert_version()
+    georeference = None
+    for record in records:
+        georeference = (record.get("facts") or {}).get("georeference") or georeference
+    artifacts = {artifact: {**info, "stage": record["name"]}
+                 for record in records for artifact, info in (record.get("outputs") or {}).items()}
+    return {
+        "manifest_version": MANIFEST_VERSION,
+        "name": name,
+        "built_at": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "mapkit": __version__,
+        "command": command,
+        "status": "ok",
+        "input": input_record,
+        "inputs": inputs,
+        "pipeline": config.to_dict(),
+        "tools": tool_versions(netconvert),
+        "stages": records,
+        "artifacts": artifacts,
+        "georeference": georeference,
+        "attribution": OSM_ATTRIBUTION if derived_from_osm(context.input_path, context.input_kind) else None,
+        "seconds": round(time.perf_counter() - started, 4),
+        "python_executable": sys.executable,
+    }
