@@ -11,7 +11,7 @@ import time
 
 import pytest
 from starlette.applications import Starlette
-from starlette.responses import JSONResponse, Response
+from starlette.responses import JSONResponse, Response, StreamingResponse
 from starlette.routing import Route
 
 from twin.udm.client import (
@@ -215,3 +215,29 @@ def test_load_generator_counts_unreachable_and_only_trusts_loopback():
     assert not is_loopback_url("http://192.168.1.10:8765") and not is_loopback_url("http://udm.example.com")
     with pytest.raises(ValueError):
         LoadPlan(url="http://127.0.0.1:1", vehicles=10_000).check()
+
+
+def test_load_generator_reads_chunked_answers_and_counts_server_faults():
+    async def chunked(request):
+        async def parts():
+            yield b'{"type": "FeatureCollection", '
+            yield b'"features": [{"type": "Feature"}, {"type": "Feature"}]}'
+        return StreamingResponse(parts(), media_type="application/geo+json")
+
+    async def failing(request):
+        return Response("no", status_code=503)
+
+    async def sleepy(request):
+        await asyncio.sleep(2.0)
+        return Response("{}")
+
+    plan = {"vehicles": 2, "rate_hz": 10.0, "duration_s": 0.3, "timeout_s": 0.1}
+    with fault_server(chunked) as server:
+        report = run_load(LoadPlan(url=server.url, **plan))
+    assert report["errors"] == 0 and report["ok"] > 0 and report["objects_per_response"] == 2.0
+    with fault_server(failing) as server:
+        report = run_load(LoadPlan(url=server.url, **plan))
+    assert report["ok"] == 0 and set(report["errors_by_kind"]) == {HTTP_5XX}
+    with fault_server(sleepy) as server:
+        report = run_load(LoadPlan(url=server.url, **plan))
+    assert report["ok"] == 0 and set(report["errors_by_kind"]) == {TIMEOUT}

@@ -96,7 +96,7 @@ class GeometryTable:
         for kind in np.unique(kinds):
             mask = kinds == kind
             g = index[mask]
-            local = _KERNELS[GeometryKind(int(kind))](self.params[g], self.length[g], ds[mask])
+            local = _KERNELS[GeometryKind(int(kind))](self.params[g], self.length[g], ds[mask], g)
             u, v, theta, k = local
             cos_h = np.cos(self.hdg[g])
             sin_h = np.sin(self.hdg[g])
@@ -109,12 +109,12 @@ class GeometryTable:
 
 # Each local kernel returns (u, v, heading change, curvature) in the geometry's own frame.
 
-def _line(params, length, ds):
+def _line(params, length, ds, geometry=None):
     zero = np.zeros_like(ds)
     return ds, zero, zero, zero
 
 
-def _arc(params, length, ds):
+def _arc(params, length, ds, geometry=None):
     k = params[:, 0]
     angle = k * ds
     # chord = 2 sin(k ds / 2) / k, written with sinc so that k -> 0 is exact, not 0/0
@@ -142,7 +142,7 @@ def _integrate(func, upper: np.ndarray, panels: int) -> np.ndarray:
     return func(t) @ weights * upper
 
 
-def _spiral(params, length, ds):
+def _spiral(params, length, ds, geometry=None):
     c0 = params[:, 0]
     rate = np.divide(params[:, 1] - params[:, 0], length, out=np.zeros_like(length), where=length > 0)
     theta = c0 * ds + 0.5 * rate * ds * ds
@@ -183,7 +183,7 @@ def _arc_length_inverse(speed, p_end: np.ndarray, target: np.ndarray, row: np.nd
     return p
 
 
-def _poly3(params, length, ds):
+def _poly3(params, length, ds, geometry=None):
     a, b, c, d = (params[:, i] for i in range(4))
     rows = np.arange(len(ds))
 
@@ -199,18 +199,18 @@ def _poly3(params, length, ds):
     return u, v, np.arctan(first), curvature
 
 
-def _param_poly3(params, length, ds):
+def _param_poly3(params, length, ds, geometry=None):
     """s is arc length along the curve while p need not be; the geometry's @length is mapped onto the
     curve's true length, so that consecutive geometries stay joined even when the file's @length is off
     by a few millimetres (the validator reports such files)."""
     aU, bU, cU, dU, aV, bV, cV, dV, normalized = (params[:, i] for i in range(9))
     p_end = np.where(normalized > 0.5, 1.0, length)
     # one table per distinct geometry: samples share the geometry's row
-    key = np.column_stack([params, length])
-    unique, row = np.unique(key, axis=0, return_inverse=True)
+    ids = np.arange(len(ds)) if geometry is None else geometry
+    _, first, row = np.unique(ids, return_index=True, return_inverse=True)
     row = row.ravel()
-    gu = unique[:, :9]
-    g_end = np.where(unique[:, 8] > 0.5, 1.0, unique[:, 9])
+    gu = params[first]
+    g_end = np.where(gu[:, 8] > 0.5, 1.0, length[first])
 
     def speed(r, p):
         du = gu[r, 1] + p * (2 * gu[r, 2] + 3 * gu[r, 3] * p)

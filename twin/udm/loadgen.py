@@ -6,6 +6,11 @@ flight; a tick that comes round while it is still waiting is skipped and counted
 lowers the offered load instead of piling up requests (the total is bounded by vehicles x rate x duration).
 
 Latency is measured like the client does: request sent -> JSON parsed, with ``time.monotonic``.
+
+Why not httpx here: the instrument must cost far less than what it measures. httpx's async client spends
+several times the server's CPU per request (its pool and async-library detection run on every call), and
+on a small machine the fleet then measures itself. Each vehicle instead keeps one keep-alive HTTP/1.1
+connection and speaks the few lines of the protocol a GET needs.
 """
 
 from __future__ import annotations
@@ -15,21 +20,22 @@ import ipaddress
 import json
 import math
 import random
+import ssl
 import time
 from collections import Counter
 from dataclasses import asdict, dataclass
 from typing import Any
-from urllib.parse import urlsplit
+from urllib.parse import urlencode, urlsplit
 
-import httpx
 import numpy as np
 
-from twin.udm.client import HTTP_4XX, HTTP_5XX, MALFORMED, OK, transport_status
+from twin.udm.client import HTTP_4XX, HTTP_5XX, MALFORMED, NETWORK, OK, TIMEOUT, UNREACHABLE
 from twin.udm.model import EARTH_RADIUS_M, square_around
 
 MAX_VEHICLES = 1000
 MAX_RATE_HZ = 100.0
 MAX_DURATION_S = 3600.0
+MAX_RESPONSE_BYTES = 64 * 1024 * 1024
 HAMBURG = (53.55, 9.99)
 
 
@@ -48,6 +54,8 @@ class LoadPlan:
 
     def check(self) -> None:
         """Raise ValueError when the plan is outside the bounds that keep a load test a test."""
+        if urlsplit(self.url).scheme not in ("http", "https") or not urlsplit(self.url).hostname:
+            raise ValueError(f"url {self.url!r} is not an http(s) URL")
         if not 1 <= self.vehicles <= MAX_VEHICLES:
             raise ValueError(f"vehicles must be 1..{MAX_VEHICLES}")
         if not 0 < self.rate_hz <= MAX_RATE_HZ:
@@ -94,10 +102,77 @@ class _Vehicle:
         self.north += self.speed * dt * math.cos(self.heading)
         if math.hypot(self.east, self.north) > self.plan.area_radius_m:
             self.heading += math.pi
-        lat = self.plan.lat + math.degrees(self.north / EARTH_RADIUS_M)
         parallel_radius = EARTH_RADIUS_M * math.cos(math.radians(self.plan.lat))
+        lat = self.plan.lat + math.degrees(self.north / EARTH_RADIUS_M)
         lon = self.plan.lon + math.degrees(self.east / parallel_radius)
         return lat, lon
+
+
+class _ConnectFailed(Exception):
+    """The TCP (or TLS) connection could not be opened: the UDM is unreachable."""
+
+
+class _Connection:
+    """One keep-alive HTTP/1.1 connection that can GET and read a Content-Length or chunked body."""
+
+    def __init__(self, url: str, tls: ssl.SSLContext | None) -> None:
+        parts = urlsplit(url)
+        self.host = parts.hostname or ""
+        self.port = parts.port or (443 if parts.scheme == "https" else 80)
+        self.host_header = parts.netloc
+        self.prefix = parts.path.rstrip("/")
+        self.tls = tls if parts.scheme == "https" else None
+        self.reader: asyncio.StreamReader | None = None
+        self.writer: asyncio.StreamWriter | None = None
+
+    async def get(self, path: str, params: dict[str, str]) -> tuple[int, bytes]:
+        """(status code, body); raises _ConnectFailed, OSError, IncompleteReadError or ValueError."""
+        if self.writer is None or self.writer.is_closing():
+            try:
+                self.reader, self.writer = await asyncio.open_connection(self.host, self.port, ssl=self.tls)
+            except OSError as error:
+                raise _ConnectFailed(str(error)) from error
+        assert self.reader is not None
+        target = f"{self.prefix}{path}?{urlencode(params)}"
+        self.writer.write(f"GET {target} HTTP/1.1\r\nHost: {self.host_header}\r\n"
+                          "Accept: application/geo+json\r\n\r\n".encode("ascii"))
+        head = await self.reader.readuntil(b"\r\n\r\n")
+        status_line, *header_lines = head.decode("latin-1").split("\r\n")
+        status = int(status_line.split(" ", 2)[1])
+        headers = {}
+        for line in header_lines:
+            if ":" in line:
+                name, value = line.split(":", 1)
+                headers[name.strip().lower()] = value.strip()
+        if "chunked" in headers.get("transfer-encoding", "").lower():
+            body = await self._read_chunked()
+        else:
+            length = int(headers.get("content-length", "0"))
+            if length > MAX_RESPONSE_BYTES:
+                raise ValueError(f"response of {length} bytes is too large")
+            body = await self.reader.readexactly(length)
+        if headers.get("connection", "").lower() == "close":
+            self.close()
+        return status, body
+
+    async def _read_chunked(self) -> bytes:
+        assert self.reader is not None
+        chunks, total = [], 0
+        while True:
+            size = int((await self.reader.readuntil(b"\r\n")).split(b";")[0], 16)
+            total += size
+            if total > MAX_RESPONSE_BYTES:
+                raise ValueError("chunked response is too large")
+            chunks.append((await self.reader.readexactly(size + 2))[:-2])  # each chunk ends in CRLF
+            if size == 0:
+                while (await self.reader.readuntil(b"\r\n")) != b"\r\n":  # trailers
+                    pass
+                return b"".join(chunks)
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
+        self.reader = self.writer = None
 
 
 async def _run_load(plan: LoadPlan) -> dict[str, Any]:
@@ -107,19 +182,18 @@ async def _run_load(plan: LoadPlan) -> dict[str, Any]:
     outcomes: Counter[str] = Counter()
     skipped = 0
     period = 1.0 / plan.rate_hz
+    tls = ssl.create_default_context() if plan.url.startswith("https") else None
 
     async def drive(vehicle: _Vehicle, start: float, end: float) -> None:
         nonlocal skipped
-        # One client (one keep-alive connection) per vehicle, as separate cars would have; a shared pool
-        # also costs httpcore time proportional to its size on every request, which the fleet would measure.
-        async with httpx.AsyncClient(base_url=plan.url, timeout=plan.timeout_s, trust_env=False,
-                                     limits=httpx.Limits(max_connections=1)) as client:
-            tick = 0
+        connection = _Connection(plan.url, tls)
+        tick = 0
+        try:
             while (t_tick := start + tick * period) < end:
                 await asyncio.sleep(max(0.0, t_tick - time.monotonic()))
                 lat, lon = vehicle.step(period)
                 bbox = square_around(lat, lon, plan.side_m).as_param()
-                status, n_objects, latency = await _query(client, bbox)
+                status, n_objects, latency = await _query(connection, bbox, plan.timeout_s)
                 outcomes[status] += 1
                 if status == OK:
                     latencies.append(latency)
@@ -128,6 +202,8 @@ async def _run_load(plan: LoadPlan) -> dict[str, Any]:
                 due = math.floor((time.monotonic() - start) / period) + 1
                 skipped += max(0, due - tick - 1)
                 tick = max(tick + 1, due)
+        finally:
+            connection.close()
 
     vehicles = [_Vehicle(plan, rng) for _ in range(plan.vehicles)]
     begin = time.monotonic() + 0.05
@@ -152,17 +228,25 @@ async def _run_load(plan: LoadPlan) -> dict[str, Any]:
     }
 
 
-async def _query(client: httpx.AsyncClient, bbox: str) -> tuple[str, int, float]:
+async def _query(connection: _Connection, bbox: str, timeout_s: float) -> tuple[str, int, float]:
     """One bbox query: (status, number of objects, seconds from send to parsed JSON)."""
     t_sent = time.monotonic()
     try:
-        reply = await client.get("/objects", params={"bbox": bbox})
-    except httpx.HTTPError as error:
-        return transport_status(error), 0, time.monotonic() - t_sent
-    if reply.status_code != 200:
-        return (HTTP_5XX if reply.status_code >= 500 else HTTP_4XX), 0, time.monotonic() - t_sent
+        async with asyncio.timeout(timeout_s):
+            code, body = await connection.get("/objects", {"bbox": bbox})
+    except TimeoutError:
+        connection.close()  # the late answer would otherwise be read as the next query's
+        return TIMEOUT, 0, time.monotonic() - t_sent
+    except _ConnectFailed:
+        connection.close()
+        return UNREACHABLE, 0, time.monotonic() - t_sent
+    except (OSError, asyncio.IncompleteReadError, asyncio.LimitOverrunError, ValueError, IndexError):
+        connection.close()
+        return NETWORK, 0, time.monotonic() - t_sent
+    if code != 200:
+        return (HTTP_5XX if code >= 500 else HTTP_4XX), 0, time.monotonic() - t_sent
     try:
-        document = json.loads(reply.content)
+        document = json.loads(body)
         features = document["features"]
         if document.get("type") != "FeatureCollection" or not isinstance(features, list):
             raise ValueError("not a FeatureCollection")

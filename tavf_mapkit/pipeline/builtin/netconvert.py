@@ -22,7 +22,8 @@ class NetconvertStage(Stage):
         profile = load_profile(settings.get("profile", DEFAULT_PROFILE))
         options = {
             "netconvert": netconvert_version(),
-            "profile": profile.to_dict(),
+            "profile": profile.name,
+            "profile_options": profile.options_for(context.input_kind),
             "crs": settings.get("crs", DEFAULT_CRS),
         }
         if context.input_kind == "sumo-net" and "bbox" in context.section("area"):
