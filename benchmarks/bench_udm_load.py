@@ -27,11 +27,10 @@ from pathlib import Path
 
 import httpx
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
+from twin.udm.loadgen import HAMBURG, LoadPlan, run_load
+from twin.udm.model import EARTH_RADIUS_M
 
-from twin.udm.loadgen import HAMBURG, LoadPlan, run_load  # noqa: E402
-from twin.udm.model import EARTH_RADIUS_M  # noqa: E402
+REPO = Path(__file__).resolve().parents[1]
 
 TARGET_P95_MS = 20.0
 TYPES = (("traffic_signals", 2), ("traffic_sign", 2), ("roadworks", 3), ("vehicle", 4), ("pedestrian", 4))
@@ -48,7 +47,7 @@ def main() -> None:
     args = parser.parse_args()
 
     token = secrets.token_urlsafe(16)
-    with tempfile.TemporaryFile("w+") as server_log, start_server(token, server_log) as url:
+    with tempfile.TemporaryFile("w+") as server_log, ServerProcess(token, server_log) as url:
         seed_random_objects(url, token, args.objects, args.area_radius, args.seed)
         plan = LoadPlan(url=url, vehicles=args.vehicles, rate_hz=args.rate, duration_s=args.duration,
                         lat=HAMBURG[0], lon=HAMBURG[1], area_radius_m=args.area_radius, seed=args.seed)
@@ -56,13 +55,14 @@ def main() -> None:
     print_table(args, report)
 
 
-class start_server:  # noqa: N801 -- used like a function: ``with start_server(...) as url``
+class ServerProcess:
     """``twin udm serve --port 0`` in a subprocess; yields its URL, stops it on exit."""
 
     def __init__(self, token: str, log) -> None:
         command = [sys.executable, "-m", "twin.cli.main", "udm", "serve", "--port", "0"]
         env = {**os.environ, "TWIN_UDM_TOKEN": token, "PYTHONPATH": str(REPO)}
-        self.process = subprocess.Popen(command, cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=log, text=True)
+        self.process = subprocess.Popen(command, cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=log,
+                                        text=True)
 
     def __enter__(self) -> str:
         lines: queue.Queue[str] = queue.Queue()

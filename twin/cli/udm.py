@@ -58,10 +58,15 @@ def serve(db_path: Path | None, host: str, port: int, token: str | None, seed_di
     $ curl -X POST -H "Authorization: Bearer $TOKEN" -H 'Content-Type: application/geo+json' \\
         -d @roadworks.geojson http://127.0.0.1:8765/objects
     """
+    # Imported here so that `twin --help` does not pay for uvicorn, starlette and osmium.
+    from twin.udm.loadgen import is_loopback_host
     from twin.udm.seed import seed_from_build
     from twin.udm.server import create_app, run_server
     from twin.udm.store import IN_MEMORY, SqliteRtreeStore
 
+    if not is_loopback_host(host):
+        click.echo(f"note: listening on {host}: anyone who can reach this port can read the map "
+                   "(writes still need the token)", err=True)
     generated = not token
     token = token or secrets.token_urlsafe(24)
     if db_path is not None and not db_path.parent.is_dir():

@@ -69,12 +69,15 @@ class LoadPlan:
 def is_loopback_url(url: str) -> bool:
     """True for http(s) URLs on 127.0.0.0/8, ::1 or localhost -- no name resolution involved."""
     parts = urlsplit(url)
-    if parts.scheme not in ("http", "https") or not parts.hostname:
-        return False
-    if parts.hostname == "localhost":
+    return parts.scheme in ("http", "https") and is_loopback_host(parts.hostname or "")
+
+
+def is_loopback_host(host: str) -> bool:
+    """True for 127.0.0.0/8, ::1 and localhost; names are not resolved (a DNS answer can change)."""
+    if host == "localhost":
         return True
     try:
-        return ipaddress.ip_address(parts.hostname).is_loopback
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
     except ValueError:
         return False
 
@@ -160,14 +163,14 @@ class _Connection:
         chunks, total = [], 0
         while True:
             size = int((await self.reader.readuntil(b"\r\n")).split(b";")[0], 16)
+            if size == 0:  # the last chunk: optional trailer lines, then an empty line
+                while (await self.reader.readuntil(b"\r\n")) != b"\r\n":
+                    pass
+                return b"".join(chunks)
             total += size
             if total > MAX_RESPONSE_BYTES:
                 raise ValueError("chunked response is too large")
             chunks.append((await self.reader.readexactly(size + 2))[:-2])  # each chunk ends in CRLF
-            if size == 0:
-                while (await self.reader.readuntil(b"\r\n")) != b"\r\n":  # trailers
-                    pass
-                return b"".join(chunks)
 
     def close(self) -> None:
         if self.writer is not None:

@@ -40,6 +40,7 @@ MAX_LIMIT = 10_000
 MAX_FEATURES_PER_POST = 10_000
 MAX_BODY_BYTES = 16 * 1024 * 1024
 DEFAULT_PURGE_INTERVAL_S = 60.0
+WRITE_SLICE = 500
 
 QUERY_PARAMETERS = {"bbox", "lat", "lon", "radius", "layers", "types", "limit"}
 GEOJSON = "application/geo+json"
@@ -47,8 +48,8 @@ GEOJSON = "application/geo+json"
 log = logging.getLogger("twin.udm")
 
 
-class BadRequest(Exception):
-    """A query or body the API refuses; becomes a 400 (or ``status``) JSON answer."""
+class ApiError(Exception):
+    """A request the API refuses; becomes a JSON answer with ``status`` (400 unless said otherwise)."""
 
     def __init__(self, message: str, status: int = 400, code: str = "bad_request") -> None:
         super().__init__(message)
@@ -107,7 +108,7 @@ def create_app(store: Store, token: str, *, purge_interval_s: float = DEFAULT_PU
     async def get_object(request: Request) -> Response:
         obj = store.get(request.path_params["object_id"])
         if obj is None:
-            raise BadRequest(f"no object {request.path_params['object_id']!r}", 404, "not_found")
+            raise ApiError(f"no object {request.path_params['object_id']!r}", 404, "not_found")
         return GeoJSONResponse(obj.to_feature())
 
     async def post_objects(request: Request) -> Response:
@@ -115,7 +116,12 @@ def create_app(store: Store, token: str, *, purge_interval_s: float = DEFAULT_PU
             return unauthorised()
         document = await read_json_body(request)
         objects, single = objects_from_document(document)
-        stored = store.upsert(objects)
+        stored = []
+        # Everything was validated above, so writing in slices cannot leave half a bad request behind; the
+        # pause between slices lets the fleet's queries through while a big batch is loaded.
+        for start in range(0, len(objects), WRITE_SLICE):
+            stored += store.upsert(objects[start:start + WRITE_SLICE])
+            await asyncio.sleep(0)
         if single:
             headers = {"Location": f"/objects/{stored[0].id}"}
             return GeoJSONResponse(stored[0].to_feature(), status_code=201, headers=headers)
@@ -130,7 +136,7 @@ def create_app(store: Store, token: str, *, purge_interval_s: float = DEFAULT_PU
             return unauthorised()
         object_id = request.path_params["object_id"]
         if not store.delete(object_id):
-            raise BadRequest(f"no object {object_id!r}", 404, "not_found")
+            raise ApiError(f"no object {object_id!r}", 404, "not_found")
         return Response(status_code=204)
 
     @contextlib.asynccontextmanager
@@ -152,7 +158,7 @@ def create_app(store: Store, token: str, *, purge_interval_s: float = DEFAULT_PU
         Route("/objects/{object_id}", get_object, methods=["GET"]),
         Route("/objects/{object_id}", delete_object, methods=["DELETE"]),
     ]
-    handlers = {BadRequest: bad_request, HTTPException: http_exception, Exception: internal_error}
+    handlers = {ApiError: api_error, HTTPException: http_exception, Exception: internal_error}
     app = Starlette(routes=routes, exception_handlers=handlers, lifespan=lifespan)
     app.state.store = store
     return app
@@ -180,9 +186,9 @@ def parse_object_query(items: list[tuple[str, str]]) -> dict[str, Any]:
     for key, value in items:
         if key not in QUERY_PARAMETERS:
             # A typo such as layer=2 would otherwise silently return every layer.
-            raise BadRequest(f"unknown parameter {key!r}; known: {', '.join(sorted(QUERY_PARAMETERS))}")
+            raise ApiError(f"unknown parameter {key!r}; known: {', '.join(sorted(QUERY_PARAMETERS))}")
         if key in params:
-            raise BadRequest(f"parameter {key!r} given twice")
+            raise ApiError(f"parameter {key!r} given twice")
         params[key] = value
 
     query: dict[str, Any] = {
@@ -192,19 +198,19 @@ def parse_object_query(items: list[tuple[str, str]]) -> dict[str, Any]:
     }
     circle = [key for key in ("lat", "lon", "radius") if key in params]
     if "bbox" in params and circle:
-        raise BadRequest("give either bbox or lat/lon/radius, not both")
+        raise ApiError("give either bbox or lat/lon/radius, not both")
     if "bbox" in params:
         query["bbox"] = parse_bbox(params["bbox"])
     elif circle:
         if len(circle) != 3:
-            raise BadRequest("a radius query needs all of lat, lon and radius")
+            raise ApiError("a radius query needs all of lat, lon and radius")
         query["lat"] = parse_number(params["lat"], "lat", -90.0, 90.0)
         query["lon"] = parse_number(params["lon"], "lon", -180.0, 180.0)
         query["radius"] = parse_number(params["radius"], "radius", 0.0, MAX_RADIUS_M)
         if query["radius"] <= 0.0:
-            raise BadRequest("radius must be more than 0 metres")
+            raise ApiError("radius must be more than 0 metres")
     else:
-        raise BadRequest("give bbox=minlon,minlat,maxlon,maxlat or lat=..&lon=..&radius=metres")
+        raise ApiError("give bbox=minlon,minlat,maxlon,maxlat or lat=..&lon=..&radius=metres")
     return query
 
 
@@ -212,28 +218,28 @@ def parse_number(text: str, name: str, low: float, high: float) -> float:
     try:
         value = float(text)
     except ValueError:
-        raise BadRequest(f"{name} {text!r} is not a number") from None
+        raise ApiError(f"{name} {text!r} is not a number") from None
     if not math.isfinite(value):
-        raise BadRequest(f"{name} must be a finite number, not {text!r}")
+        raise ApiError(f"{name} must be a finite number, not {text!r}")
     if not low <= value <= high:
-        raise BadRequest(f"{name} {value:g} is outside {low:g}..{high:g}")
+        raise ApiError(f"{name} {value:g} is outside {low:g}..{high:g}")
     return value
 
 
 def parse_bbox(text: str) -> BBox:
     parts = text.split(",")
     if len(parts) != 4:
-        raise BadRequest(f"bbox needs 4 numbers minlon,minlat,maxlon,maxlat, got {text!r}")
+        raise ApiError(f"bbox needs 4 numbers minlon,minlat,maxlon,maxlat, got {text!r}")
     min_lon = parse_number(parts[0], "bbox minlon", -180.0, 180.0)
     min_lat = parse_number(parts[1], "bbox minlat", -90.0, 90.0)
     max_lon = parse_number(parts[2], "bbox maxlon", -180.0, 180.0)
     max_lat = parse_number(parts[3], "bbox maxlat", -90.0, 90.0)
     if min_lon > max_lon or min_lat > max_lat:
         # Boxes over the antimeridian are not supported; ask with two boxes instead.
-        raise BadRequest(f"bbox {text!r} is inverted: need minlon <= maxlon and minlat <= maxlat")
+        raise ApiError(f"bbox {text!r} is inverted: need minlon <= maxlon and minlat <= maxlat")
     bbox = BBox(min_lon, min_lat, max_lon, max_lat)
     if bbox.area_km2() > MAX_BBOX_AREA_KM2:
-        raise BadRequest(f"bbox covers {bbox.area_km2():.0f} km2; the limit is {MAX_BBOX_AREA_KM2:g} km2")
+        raise ApiError(f"bbox covers {bbox.area_km2():.0f} km2; the limit is {MAX_BBOX_AREA_KM2:g} km2")
     return bbox
 
 
@@ -241,15 +247,15 @@ def parse_layers(text: str) -> list[int]:
     try:
         return sorted({parse_layer(part) for part in text.split(",")})
     except InvalidObject as error:
-        raise BadRequest(str(error)) from None
+        raise ApiError(str(error)) from None
 
 
 def parse_types(text: str) -> list[str]:
     types = [part.strip() for part in text.split(",")]
     if not all(types):
-        raise BadRequest(f"types {text!r} has an empty entry")
+        raise ApiError(f"types {text!r} has an empty entry")
     if len(types) > 50:
-        raise BadRequest("at most 50 types per query")
+        raise ApiError("at most 50 types per query")
     return types
 
 
@@ -257,7 +263,7 @@ def parse_limit(text: str | None) -> int:
     if text is None:
         return DEFAULT_LIMIT
     if not text.isdigit() or not 1 <= int(text) <= MAX_LIMIT:
-        raise BadRequest(f"limit must be a whole number 1..{MAX_LIMIT}, not {text!r}")
+        raise ApiError(f"limit must be a whole number 1..{MAX_LIMIT}, not {text!r}")
     return int(text)
 
 
@@ -265,17 +271,17 @@ async def read_json_body(request: Request) -> Any:
     """The request body as JSON, read with a size cap so a huge upload is refused before it fills memory."""
     declared = request.headers.get("content-length", "")
     if declared.isdigit() and int(declared) > MAX_BODY_BYTES:
-        raise BadRequest(f"body is larger than {MAX_BODY_BYTES} bytes", 413, "too_large")
+        raise ApiError(f"body is larger than {MAX_BODY_BYTES} bytes", 413, "too_large")
     chunks, size = [], 0
     async for chunk in request.stream():
         size += len(chunk)
         if size > MAX_BODY_BYTES:
-            raise BadRequest(f"body is larger than {MAX_BODY_BYTES} bytes", 413, "too_large")
+            raise ApiError(f"body is larger than {MAX_BODY_BYTES} bytes", 413, "too_large")
         chunks.append(chunk)
     try:
         return json.loads(b"".join(chunks))
     except (UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise BadRequest(f"body is not JSON: {error}") from None
+        raise ApiError(f"body is not JSON: {error}") from None
 
 
 def objects_from_document(document: Any) -> tuple[list[UdmObject], bool]:
@@ -286,11 +292,11 @@ def objects_from_document(document: Any) -> tuple[list[UdmObject], bool]:
     elif kind == "FeatureCollection":
         features, single = document.get("features"), False
         if not isinstance(features, list):
-            raise BadRequest("FeatureCollection.features must be a list")
+            raise ApiError("FeatureCollection.features must be a list")
         if len(features) > MAX_FEATURES_PER_POST:
-            raise BadRequest(f"at most {MAX_FEATURES_PER_POST} features per request", 413, "too_large")
+            raise ApiError(f"at most {MAX_FEATURES_PER_POST} features per request", 413, "too_large")
     else:
-        raise BadRequest('body must be a GeoJSON Feature or FeatureCollection ("type" says which)')
+        raise ApiError('body must be a GeoJSON Feature or FeatureCollection ("type" says which)')
 
     objects, seen = [], set()
     for index, feature in enumerate(features):
@@ -298,9 +304,9 @@ def objects_from_document(document: Any) -> tuple[list[UdmObject], bool]:
         try:
             obj = UdmObject.from_feature(feature, default_id=uuid.uuid4().hex)
         except InvalidObject as error:
-            raise BadRequest(f"{where}: {error}") from None
+            raise ApiError(f"{where}: {error}") from None
         if obj.id in seen:
-            raise BadRequest(f"{where}: id {obj.id!r} appears twice in one request")
+            raise ApiError(f"{where}: id {obj.id!r} appears twice in one request")
         seen.add(obj.id)
         objects.append(obj)
     return objects, single
@@ -320,8 +326,8 @@ def unauthorised() -> Response:
     )
 
 
-async def bad_request(request: Request, error: Exception) -> Response:
-    assert isinstance(error, BadRequest)
+async def api_error(request: Request, error: Exception) -> Response:
+    assert isinstance(error, ApiError)
     return json_error(error.status, error.code, error.message)
 
 
