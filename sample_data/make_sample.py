@@ -50,7 +50,8 @@ class District:
 def layout() -> District:
     d = District()
     # Dual carriageway E-W: eastbound on the south side (right-hand traffic), westbound on the north side.
-    allee = {"highway": "primary", "name": "Synthetische Allee", "oneway": "yes", "lanes": "2", "maxspeed": "50"}
+    allee = {"highway": "primary", "name": "Synthetische Allee", "oneway": "yes", "lanes": "2",
+             "maxspeed": "50"}
     d.way([(-300, -8), (-150, -8)], **allee)
     d.way([(-150, -8), (0, -8)], **allee, **{"turn:lanes": "left|through"})  # south leg is one-way north
     d.way([(0, -8), (150, -8), (300, -8)], **allee)
@@ -70,11 +71,12 @@ def layout() -> District:
     ring = [(25 * math.cos(math.radians(270 + 22.5 * i)), 200 + 25 * math.sin(math.radians(270 + 22.5 * i)))
             for i in range(16)]
     d.way([*ring, ring[0]], highway="secondary", junction="roundabout", name="Kreisel", lanes="1")
-    d.way([(0, 300), d.node(0, 237, traffic_sign="DE:205", direction="forward"), (0, 225)], **street, lanes="2")
+    d.way([(0, 300), d.node(0, 237, traffic_sign="DE:205", direction="forward"), (0, 225)],
+          **street, lanes="2")
     d.way([(300, 200), (150, 200), d.node(37, 200, traffic_sign="DE:205", direction="forward"), (25, 200)],
           highway="tertiary", name="Ostring", maxspeed="50")
-    d.way([(-300, 200), (-150, 200), d.node(-37, 200, traffic_sign="DE:205", direction="forward"), (-25, 200)],
-          highway="tertiary", name="Westring", maxspeed="50")
+    d.way([(-300, 200), (-150, 200), d.node(-37, 200, traffic_sign="DE:205", direction="forward"),
+           (-25, 200)], highway="tertiary", name="Westring", maxspeed="50")
 
     # Brueckenweg E-W at y=-150, on a bridge over the Signalstrasse (no shared node at the crossing).
     bridge_street = {"highway": "residential", "name": "Brückenweg", "maxspeed": "30"}
@@ -122,8 +124,8 @@ def to_osm_xml(district: District) -> str:
         '<?xml version="1.0" encoding="UTF-8"?>',
         '<osm version="0.6" generator="tavf-mapkit sample_data/make_sample.py (SYNTHETIC data)">',
         f"<!-- {NOTE}. Placed at TAVF Hamburg coordinates (lat {CENTRE_LAT}, lon {CENTRE_LON}). -->",
-        f'  <bounds minlat="{min(lats):.7f}" minlon="{min(lons):.7f}" maxlat="{max(lats):.7f}" '
-        f'maxlon="{max(lons):.7f}"/>',
+        (f'  <bounds minlat="{min(lats):.7f}" minlon="{min(lons):.7f}" maxlat="{max(lats):.7f}" '
+         f'maxlon="{max(lons):.7f}"/>'),
     ]
     for node_id in sorted(located, reverse=True):
         lon, lat = located[node_id]

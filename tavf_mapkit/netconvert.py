@@ -66,7 +66,8 @@ def netconvert_version(binary: Path | None = None) -> str:
     """First line of ``netconvert --version``, e.g. "Eclipse SUMO netconvert 1.28.0"."""
     binary = binary or find_netconvert()
     try:
-        completed = subprocess.run([str(binary), "--version"], capture_output=True, text=True, timeout=60)
+        completed = subprocess.run([str(binary), "--version"], capture_output=True, text=True, timeout=60,
+                                   check=False)
     except (OSError, subprocess.TimeoutExpired) as error:
         raise StageError(f"cannot run {binary} --version: {error}") from None
     lines = (completed.stdout or completed.stderr).strip().splitlines()
@@ -231,7 +232,8 @@ class Conversion:
         return {
             "netconvert": self.version,
             "projection": self.projection,
-            "commands": [" ".join(_quote(part) for part in ["netconvert", *command[1:]]) for command in self.commands],
+            "commands": [" ".join(_quote(part) for part in ["netconvert", *command[1:]])
+                         for command in self.commands],
             "notes": self.notes,
             "seconds": round(self.seconds, 3),
             **self.messages.to_dict(),
@@ -240,7 +242,8 @@ class Conversion:
 
 def convert(source: Path, kind: str, net: Path, xodr: Path, log: Path, profile: Profile, *,
             crs: str = "tmerc", centre: tuple[float, float] | None = None,
-            clip_bbox: tuple[float, float, float, float] | None = None, cwd: Path | None = None) -> Conversion:
+            clip_bbox: tuple[float, float, float, float] | None = None,
+            cwd: Path | None = None) -> Conversion:
     """Run netconvert on ``source`` (kind "osm" or "sumo-net") and write ``net`` and ``xodr``.
 
     ``centre`` (lon, lat) is where the transverse Mercator of an OSM input is centred (the extract's bbox
@@ -262,15 +265,18 @@ def convert(source: Path, kind: str, net: Path, xodr: Path, log: Path, profile: 
         if kind == "osm":
             projection = _osm_projection(crs, centre)
             conversion.projection = projection[1] if len(projection) > 1 else "UTM zone of the data"
-            command = [str(binary), "--osm-files", str(source), *projection, *profile_arguments, *_ALWAYS, *outputs]
+            command = [str(binary), "--osm-files", str(source), *projection, *profile_arguments, *_ALWAYS,
+                       *outputs]
             _run(command, log_file, conversion, source)
         elif kind == "sumo-net":
-            _convert_sumo_net(binary, source, crs, profile_arguments, clip_bbox, outputs, log_file, conversion)
+            _convert_sumo_net(binary, source, crs, profile_arguments, clip_bbox, outputs, log_file,
+                              conversion)
         else:
             raise InputError(f"unknown input kind {kind!r}", file=str(source))
     for path in (net, xodr):
         if not (base / path).is_file() or (base / path).stat().st_size == 0:
-            raise StageError(f"netconvert reported success but wrote no {path.name} (see {log})", file=str(source))
+            raise StageError(f"netconvert reported success but wrote no {path.name} (see {log})",
+                             file=str(source))
     conversion.seconds = time.perf_counter() - started
     return conversion
 
@@ -290,7 +296,9 @@ def _convert_sumo_net(binary: Path, source: Path, crs: str, profile_arguments: l
     from tavf_mapkit.sumonet import read_location
 
     location = read_location(conversion.cwd / source)
-    clip = [f"--keep-edges.in-geo-boundary={','.join(repr(float(v)) for v in clip_bbox)}"] if clip_bbox else []
+    clip = []
+    if clip_bbox:
+        clip = [f"--keep-edges.in-geo-boundary={','.join(repr(float(v)) for v in clip_bbox)}"]
     if crs == "keep" or not location.georeferenced:
         if crs != "keep":
             conversion.notes.append("the network has no georeference: kept its coordinates")
@@ -306,7 +314,8 @@ def _convert_sumo_net(binary: Path, source: Path, crs: str, profile_arguments: l
             written = read_location(conversion.cwd / conversion.net)
             if written.net_offset != location.net_offset:
                 raise StageError("netconvert re-projected the network while relabelling its projection "
-                                 f"(netOffset {location.net_offset} -> {written.net_offset})", file=str(source))
+                                 f"(netOffset {location.net_offset} -> {written.net_offset})",
+                                 file=str(source))
             conversion.notes.append(f"kept the network's coordinates; geoReference {location.proj!r} "
                                     f"written as the identical {relabel!r}")
         return
@@ -349,7 +358,7 @@ def _run(command: list[str], log_file, conversion: Conversion, source: Path) -> 
     log_file.flush()
     try:
         completed = subprocess.run(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                                   errors="replace", cwd=conversion.cwd)
+                                   errors="replace", cwd=conversion.cwd, check=False)
     except OSError as error:
         raise StageError(f"cannot run netconvert: {error}") from None
     log_file.write(completed.stdout)

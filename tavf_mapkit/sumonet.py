@@ -1,4 +1,4 @@
-"""SUMO network input (.net.xml, .net.xml.gz): a safety check before netconvert reads it, and its georeference.
+"""SUMO network input (.net.xml, .net.xml.gz): a safety check before netconvert reads it; its georeference.
 
 netconvert parses a SUMO network with its own XML parser, so the checks happen here first: the file must
 be well-formed, have a <net> root and carry no DOCTYPE (a SUMO network never has one; a DOCTYPE is how
@@ -25,7 +25,7 @@ def is_sumo_net(path: str | Path) -> bool:
 
 @dataclass(frozen=True)
 class Location:
-    """The <location> of a SUMO network: net = projected + net_offset; ``proj`` "!" means not georeferenced."""
+    """A SUMO network's <location>: net = projected + net_offset; ``proj`` "!" = not georeferenced."""
 
     net_offset: tuple[float, float]
     conv_boundary: tuple[float, float, float, float]
@@ -75,7 +75,7 @@ def check_sumo_net(path: str | Path) -> dict:
               "connections": 0, "roundabouts": 0}
     location = None
     root_seen = False
-    for event, element in iterparse_safe(source, events=("start",)):
+    for _event, element in iterparse_safe(source, events=("start",)):
         if not root_seen:
             root_seen = True
             if element.tag != "net":

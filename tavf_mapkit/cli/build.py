@@ -83,7 +83,8 @@ def _json_summary(result) -> dict:
         "seconds": manifest["seconds"],
         "stages": [{key: record.get(key) for key in ("name", "status", "seconds", "note")}
                    for record in manifest["stages"]],
-        "outputs": {artifact: str(result.folder / info["path"]) for artifact, info in manifest["artifacts"].items()},
+        "outputs": {artifact: str(result.folder / info["path"])
+                    for artifact, info in manifest["artifacts"].items()},
         "georeference": manifest.get("georeference"),
         "attribution": manifest.get("attribution"),
         "report": report,

@@ -13,7 +13,7 @@ from tavf_mapkit.errors import InputError
 
 @dataclass(frozen=True, eq=False)
 class Area:
-    """Where to cut. ``bbox`` is (W, S, E, N) in degrees; ``polygon`` (shapely, lon/lat) refines it if given."""
+    """Where to cut: ``bbox`` is (W, S, E, N) in degrees; ``polygon`` (shapely, lon/lat) refines it."""
 
     bbox: tuple[float, float, float, float]
     description: str
@@ -74,7 +74,8 @@ def load_polygon(path: str | Path) -> Area:
     geometries = []
     for geometry in _geometries(document):
         if geometry.get("type") not in ("Polygon", "MultiPolygon"):
-            raise InputError(f"expected Polygon or MultiPolygon geometries, found {geometry.get('type')}", file=name)
+            raise InputError(f"expected Polygon or MultiPolygon geometries, found {geometry.get('type')}",
+                             file=name)
         try:
             geometries.append(shape(geometry))
         except (ValueError, TypeError, AttributeError, IndexError) as error:

@@ -40,6 +40,8 @@ def extract(source: str | Path, target: str | Path, area: Area | None = None, *,
     require_readable(source)
     if target.exists() and target.resolve() == source.resolve():
         raise InputError("output would overwrite the input", file=str(target))
+    if not target.parent.is_dir():
+        raise InputError("cannot write: the output's folder does not exist", file=str(target))
 
     if area is None:
         selection = None
@@ -70,7 +72,10 @@ def extract(source: str | Path, target: str | Path, area: Area | None = None, *,
     except OSError as error:
         raise InputError(f"cannot write: {error.strerror or error}", file=str(target)) from None
     finally:
-        partial.unlink(missing_ok=True)
+        try:
+            partial.unlink(missing_ok=True)
+        except OSError:
+            pass
     return summary
 
 
@@ -105,7 +110,8 @@ def _select(source: Path, area: Area, routes: bool) -> _Selection:
     inside = set(ids_np[area.contains(lon_np, lat_np)].tolist())
     selection.nodes_read, selection.nodes_inside = len(ids_np), len(inside)
     if len(ids_np):
-        selection.file_bbox = (float(lon_np.min()), float(lat_np.min()), float(lon_np.max()), float(lat_np.max()))
+        selection.file_bbox = (float(lon_np.min()), float(lat_np.min()),
+                               float(lon_np.max()), float(lat_np.max()))
 
     selection.nodes = set(inside)
     for way in osmium.FileProcessor(str(source), WAY):
@@ -139,13 +145,13 @@ def _write(source: Path, writer, selection: _Selection | None, summary: ExtractS
             if selection is None or obj.id in selection.ways:
                 writer.add_way(obj)
                 summary.count_way(obj)
-        elif obj.is_relation():
-            if selection is None or obj.id in selection.relations:
-                writer.add_relation(obj)
-                summary.count_relation(obj)
+        elif obj.is_relation() and (selection is None or obj.id in selection.relations):
+            writer.add_relation(obj)
+            summary.count_relation(obj)
 
 
-def _empty_message(source: Path, area: Area | None, summary: ExtractSummary, selection: _Selection | None) -> str:
+def _empty_message(source: Path, area: Area | None, summary: ExtractSummary,
+                   selection: _Selection | None) -> str:
     if area is None:
         return f"the file holds no ways ({summary.nodes} nodes): nothing to build a road network from"
     where = ""

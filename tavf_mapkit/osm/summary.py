@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 
 @dataclass
 class ExtractSummary:
-    """Counts of one written extract. ``bbox`` is (W, S, E, N) of the nodes written, None if there are none."""
+    """Counts of one written extract; ``bbox`` is (W, S, E, N) of the nodes written (None if none)."""
 
     output: str
     area: dict | None = None
@@ -102,7 +102,8 @@ class ExtractSummary:
             lines.append(f"  extent: {west:.5f},{south:.5f},{east:.5f},{north:.5f} (W,S,E,N)"
                          f" ~{_width_m(self.bbox):.0f} x {_height_m(self.bbox):.0f} m")
         highways = ", ".join(f"{count} {kind}" for kind, count in self.highway_ways.most_common())
-        lines.append(f"  highway ways: {sum(self.highway_ways.values())}" + (f" ({highways})" if highways else ""))
+        total = sum(self.highway_ways.values())
+        lines.append(f"  highway ways: {total}" + (f" ({highways})" if highways else ""))
         lines.append(f"  traffic signals: {self.traffic_signals}, traffic signs: {self.traffic_signs}, "
                      f"buildings: {self.buildings}")
         return "\n".join(lines)

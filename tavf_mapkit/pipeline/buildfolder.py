@@ -18,6 +18,7 @@ import signal
 import tempfile
 import threading
 from pathlib import Path
+from typing import Self
 
 from tavf_mapkit.errors import InputError, StageError
 from tavf_mapkit.pipeline.manifest import MANIFEST_NAME
@@ -46,7 +47,7 @@ class BuildFolder:
         """The current build at the target, if there is one."""
         return self.target if (self.target / MANIFEST_NAME).is_file() else None
 
-    def __enter__(self) -> BuildFolder:
+    def __enter__(self) -> Self:
         self._check_target()
         try:
             self.parent.mkdir(parents=True, exist_ok=True)
@@ -60,7 +61,8 @@ class BuildFolder:
             self.staging.chmod(0o777 & ~_umask())  # mkdtemp makes it private; a build folder is not
         except OSError as error:
             self._unlock()
-            raise InputError(f"cannot write the build folder: {error.strerror}", file=str(self.parent)) from None
+            raise InputError(f"cannot write the build folder: {error.strerror}",
+                             file=str(self.parent)) from None
         self._catch_sigterm()
         return self
 
@@ -112,15 +114,17 @@ class BuildFolder:
     def _lock(self) -> None:
         lock_path = self.parent / f".{self.target.name}.lock"
         try:
-            self._lock_handle = open(lock_path, "a+")
+            self._lock_handle = open(lock_path, "a+")  # noqa: SIM115 -- held open until _unlock
         except OSError as error:
-            raise InputError(f"cannot write the build folder: {error.strerror}", file=str(self.parent)) from None
+            raise InputError(f"cannot write the build folder: {error.strerror}",
+                             file=str(self.parent)) from None
         try:
             fcntl.flock(self._lock_handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             self._lock_handle.close()
             self._lock_handle = None
-            raise StageError("another mapkit build is writing this build folder", file=str(self.target)) from None
+            raise StageError("another mapkit build is writing this build folder",
+                             file=str(self.target)) from None
 
     def _unlock(self) -> None:
         if self._lock_handle is not None:
@@ -130,7 +134,7 @@ class BuildFolder:
             # the lock file stays: unlinking it would let a waiting build lock a file nobody else sees
 
     def _remove_leftovers(self) -> None:
-        """Staging folders of builds that were killed (SIGKILL, power loss); we hold the lock, so none is live."""
+        """Staging folders of killed builds (SIGKILL, power loss); we hold the lock, so none is live."""
         for leftover in self.parent.glob(f".{self.target.name}.staging-*"):
             shutil.rmtree(leftover, ignore_errors=True)
 

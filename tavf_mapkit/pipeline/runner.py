@@ -79,7 +79,8 @@ def run_build(input_path: str | Path, config: PipelineConfig, output: str | Path
     input_path = Path(input_path)
     kind = input_kind(input_path)
     if not input_path.is_file():
-        raise InputError("file not found" if not input_path.exists() else "is not a file", file=str(input_path))
+        raise InputError("file not found" if not input_path.exists() else "is not a file",
+                         file=str(input_path))
     target = Path(output) if output else Path("build") / default_build_name(input_path, config)
     if target.name in ("", ".", ".."):
         raise InputError("the build folder needs a name (e.g. -o build/tavf)", file=str(target))
@@ -89,8 +90,9 @@ def run_build(input_path: str | Path, config: PipelineConfig, output: str | Path
 
     with BuildFolder(target) as folder:
         previous = None if force or folder.existing is None else read_manifest(folder.target)
-        context = BuildContext(name=name, folder=folder.staging, input_path=input_path.resolve(), input_kind=kind,
-                               config=config, artifacts={"input": input_path.resolve()}, notify=progress)
+        context = BuildContext(name=name, folder=folder.staging, input_path=input_path.resolve(),
+                               input_kind=kind, config=config, artifacts={"input": input_path.resolve()},
+                               notify=progress)
         hashes = {"input": input_record["sha256"]}
         records = []
         for index, stage_name in enumerate(config.stages, 1):
@@ -157,7 +159,8 @@ def _run_stage(stage_name: str, context: BuildContext, hashes: dict, previous: d
         "name": stage_name, "status": status, "version": stage.version, "fingerprint": stage_fingerprint,
         "inputs": used, "options": options, "outputs": outputs, "facts": facts, "seconds": round(seconds, 4),
         # ru_maxrss is in KiB on Linux; both are maxima so far in this build, not per stage
-        "peak_rss_mib": {"mapkit": round(usage_self / 1024, 1), "subprocesses": round(usage_children / 1024, 1)},
+        "peak_rss_mib": {"mapkit": round(usage_self / 1024, 1),
+                         "subprocesses": round(usage_children / 1024, 1)},
     }
 
 
@@ -208,8 +211,8 @@ def _remove_failure_logs(target: Path) -> None:
         log.unlink(missing_ok=True)
 
 
-def _manifest(name: str, input_record: dict, config: PipelineConfig, context: BuildContext, records: list[dict],
-              started: float, command: str | None) -> dict:
+def _manifest(name: str, input_record: dict, config: PipelineConfig, context: BuildContext,
+              records: list[dict], started: float, command: str | None) -> dict:
     from tavf_mapkit.pipeline.summary import derived_from_osm
 
     inputs = [input_record]
@@ -233,7 +236,7 @@ def _manifest(name: str, input_record: dict, config: PipelineConfig, context: Bu
     return {
         "manifest_version": MANIFEST_VERSION,
         "name": name,
-        "built_at": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "built_at": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
         "mapkit": __version__,
         "command": command,
         "status": "ok",

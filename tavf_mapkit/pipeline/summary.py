@@ -58,7 +58,8 @@ def build_report(context) -> dict:
             if facts.get("georeference"):
                 report["georeference"] = facts["georeference"]
     if "xodr" in context.artifacts:
-        report["opendrive"] = {"file": context.artifacts["xodr"].name, **opendrive_counts(context.artifacts["xodr"])}
+        xodr = context.artifacts["xodr"]
+        report["opendrive"] = {"file": xodr.name, **opendrive_counts(xodr)}
     if "net" in context.artifacts:
         from tavf_mapkit.sumonet import check_sumo_net
 
@@ -75,8 +76,9 @@ def report_text(report: dict) -> str:
     if osm:
         highway = sum((osm.get("highway_ways") or {}).values())
         lines.append(f"input   {report['input']['file']}: {osm['nodes']} nodes, {osm['ways']} ways "
-                     f"({highway} highway), {osm['buildings']} buildings, {osm['traffic_signals']} signal nodes, "
-                     f"{osm['traffic_signs']} signs, {osm['turn_restrictions']} turn restrictions")
+                     f"({highway} highway), {osm['buildings']} buildings, "
+                     f"{osm['traffic_signals']} signal nodes, {osm['traffic_signs']} signs, "
+                     f"{osm['turn_restrictions']} turn restrictions")
         if osm.get("area"):
             lines.append(f"area    {osm['area']['description']}")
     sumo_input = report.get("sumo_input")
@@ -85,17 +87,18 @@ def report_text(report: dict) -> str:
                      f"{sumo_input['junctions']} junctions, {sumo_input['traffic_lights']} traffic lights")
     opendrive = report.get("opendrive")
     if opendrive:
-        lines.append(f"xodr    {opendrive['file']}: {opendrive['roads']} roads ({opendrive['road_length_km']:.1f} km), "
-                     f"{opendrive['junctions']} junctions, {opendrive['signals']} signals, "
-                     f"{opendrive['objects']} objects")
+        lines.append(f"xodr    {opendrive['file']}: {opendrive['roads']} roads "
+                     f"({opendrive['road_length_km']:.1f} km), {opendrive['junctions']} junctions, "
+                     f"{opendrive['signals']} signals, {opendrive['objects']} objects")
     net = report.get("sumo_net")
     if net:
-        lines.append(f"net     {net['file']}: {net['edges']} edges, {net['lanes']} lanes, {net['junctions']} junctions, "
-                     f"{net['traffic_lights']} traffic lights")
+        lines.append(f"net     {net['file']}: {net['edges']} edges, {net['lanes']} lanes, "
+                     f"{net['junctions']} junctions, {net['traffic_lights']} traffic lights")
     netconvert = report.get("netconvert")
     if netconvert:
         lines.append(f"netconvert  {netconvert['netconvert']}, profile {netconvert['profile']}: "
-                     f"{netconvert['warnings']} warnings of {netconvert['warning_kinds']} kinds (logs/netconvert.log)")
+                     f"{netconvert['warnings']} warnings of {netconvert['warning_kinds']} kinds "
+                     "(logs/netconvert.log)")
         for kind, count in list((netconvert.get("warnings_by_kind") or {}).items())[:3]:
             lines.append(f"    {count:4d} x {_shorten(kind, 88)}")
         for note in netconvert.get("notes") or []:
@@ -105,7 +108,8 @@ def report_text(report: dict) -> str:
         offset = georeference.get("offset") or {}
         lines.append(f"geo     {georeference.get('proj')}")
         if offset:
-            lines.append(f"        offset x={offset.get('x')} y={offset.get('y')} (projected = local + offset)")
+            lines.append(f"        offset x={offset.get('x')} y={offset.get('y')} "
+                         "(projected = local + offset)")
     if report.get("attribution"):
         lines.append(f"data    {report['attribution']}")
     return "\n".join(lines)

@@ -1,4 +1,4 @@
-"""Stage "netconvert": source -> NAME.net.xml + NAME.xodr with a netconvert profile (see tavf_mapkit.netconvert)."""
+"""Stage "netconvert": source -> NAME.net.xml + NAME.xodr with a profile (see tavf_mapkit.netconvert)."""
 
 from __future__ import annotations
 

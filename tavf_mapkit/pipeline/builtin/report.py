@@ -27,4 +27,6 @@ class ReportStage(Stage):
                                                                encoding="utf-8")
         context.output_path("report/summary.txt").write_text(report_text(report) + "\n", encoding="utf-8")
         facts = {"roads": report.get("opendrive", {}).get("roads")}
-        return StageOutput(files={"report": "report"}, facts=facts)
+        # the two files, not the folder: other stages write their own reports into report/ too
+        return StageOutput(files={"report": "report/summary.json", "report_text": "report/summary.txt"},
+                           facts=facts)

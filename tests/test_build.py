@@ -1,0 +1,439 @@
+"""`mapkit build`: the build folder, manifest, incremental reuse, atomicity under failure and interruption."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pyproj
+import pytest
+from click.testing import CliRunner
+
+from tavf_mapkit.cli.main import cli
+from tavf_mapkit.pipeline.stages import Stage, StageOutput, register_stage, unregister_stage
+from tavf_mapkit.projection import proj_parameters
+
+REPO = Path(__file__).resolve().parents[1]
+SAMPLE = REPO / "sample_data" / "tavf_synthetic.osm"
+JUNGFERNSTIEG = ("hamburg", "jungfernstieg_osm", "jungfernstieg_2023-03-10.osm")
+TAVF_NET = ("hamburg", "tavf_dlr_sumo_net", "network.net.xml.gz")
+
+
+def build(*args) -> object:
+    return CliRunner().invoke(cli, ["build", *map(str, args)])
+
+
+def manifest(folder: Path) -> dict:
+    return json.loads((folder / "manifest.json").read_text())
+
+
+def statuses(folder: Path) -> dict[str, str]:
+    return {record["name"]: record["status"] for record in manifest(folder)["stages"]}
+
+
+def snapshot(folder: Path) -> dict[str, bytes]:
+    """Every file under ``folder`` with its bytes: equal snapshots mean byte-identical folders."""
+    return {str(path.relative_to(folder)): path.read_bytes()
+            for path in sorted(folder.rglob("*")) if path.is_file()}
+
+
+def leftovers(parent: Path) -> list[str]:
+    return sorted(p.name for p in parent.iterdir() if ".staging-" in p.name)
+
+
+def assert_georeference_usable(folder: Path) -> dict:
+    georeference = manifest(folder)["georeference"]
+    pyproj.CRS.from_user_input(georeference["proj"])
+    parameters = proj_parameters(georeference["proj"])
+    assert "lat_0" in parameters and "lon_0" in parameters
+    assert georeference["crs_valid"]
+    assert georeference["lat_0"] is not None and georeference["lon_0"] is not None
+    return georeference
+
+
+@pytest.fixture(scope="module")
+def sample_build(tmp_path_factory) -> Path:
+    """One build of the sample shared by the read-only tests (copy it before changing it)."""
+    folder = tmp_path_factory.mktemp("shared") / "sample"
+    result = build(SAMPLE, "-o", folder, "-q")
+    assert result.exit_code == 0, result.output
+    return folder
+
+
+@pytest.fixture
+def existing_build(tmp_path) -> Path:
+    folder = tmp_path / "build" / "sample"
+    result = build(SAMPLE, "-o", folder, "-q")
+    assert result.exit_code == 0, result.output
+    return folder
+
+
+@pytest.fixture
+def temporary_stage():
+    names = []
+
+    def register(name: str, run, inputs=("xodr",)):
+        cls = type(f"Test_{name}", (Stage,), {"inputs": inputs, "run": lambda self, context: run(context)})
+        register_stage(name)(cls)
+        names.append(name)
+
+    yield register
+    for name in names:
+        unregister_stage(name)
+
+
+def pipeline_file(folder: Path, stages: list[str], extra: str = "") -> Path:
+    path = folder / "test-pipeline.toml"
+    path.write_text(f"[pipeline]\nstages = {json.dumps(stages)}\n{extra}")
+    return path
+
+
+# --- the folder and its manifest ----------------------------------------------------------------------
+
+
+def test_sample_build_has_the_documented_layout(sample_build):
+    name = sample_build.name
+    for relative in (f"{name}.xodr", f"{name}.net.xml", f"source/{name}.osm", "report/summary.json",
+                     "report/summary.txt", "logs/netconvert.log", "manifest.json"):
+        assert (sample_build / relative).is_file(), relative
+    assert not leftovers(sample_build.parent)
+
+
+def test_manifest_records_inputs_tools_options_stages_and_attribution(sample_build):
+    data = manifest(sample_build)
+    assert data["input"]["kind"] == "osm"
+    assert len(data["input"]["sha256"]) == 64 and data["input"]["bytes"] == SAMPLE.stat().st_size
+    assert data["tools"]["netconvert"].startswith("Eclipse SUMO netconvert")
+    assert data["tools"]["packages"]["osmium"] and data["tools"]["packages"]["eclipse-sumo"]
+    assert data["attribution"] == "(c) OpenStreetMap contributors, ODbL 1.0"
+    stages = {record["name"]: record for record in data["stages"]}
+    assert [record["name"] for record in data["stages"]] == [
+        "extract", "netconvert", "opendrive", "mesh", "collision", "check", "report"]
+    netconvert = stages["netconvert"]
+    assert netconvert["status"] == "ran" and netconvert["seconds"] > 0
+    assert netconvert["options"]["profile"] == "carla" and netconvert["options"]["crs"] == "tmerc"
+    assert set(netconvert["outputs"]) == {"net", "xodr", "netconvert_log"}
+    assert netconvert["inputs"]["source"] == stages["extract"]["outputs"]["source"]["sha256"]
+    assert stages["mesh"]["status"] == "unavailable" and stages["mesh"]["note"] == "stage mesh not available"
+    assert_georeference_usable(sample_build)
+
+
+def test_report_summarises_the_build(sample_build):
+    report = json.loads((sample_build / "report" / "summary.json").read_text())
+    assert report["osm"]["traffic_signals"] == 2 and report["osm"]["buildings"] == 8
+    assert report["opendrive"]["roads"] > 0 and report["sumo_net"]["traffic_lights"] == 1
+    assert report["netconvert"]["warnings"] == 0
+    assert report["georeference"]["proj"].startswith("+proj=tmerc +lat_0=53.556 +lon_0=9.975")
+
+
+def test_human_summary_and_progress_lines(tmp_path):
+    result = build(SAMPLE, "-o", tmp_path / "s")
+    assert result.exit_code == 0
+    assert "[2/7] netconvert: ran in" in result.stderr
+    assert "[4/7] mesh: stage mesh not available" in result.stderr
+    assert "xodr    s.xodr:" in result.stdout and "(c) OpenStreetMap contributors" in result.stdout
+    assert len(result.stdout.splitlines()) < 25  # one screen
+
+
+def test_json_output(tmp_path):
+    result = build(SAMPLE, "-o", tmp_path / "s", "--json", "-q")
+    assert result.exit_code == 0
+    data = json.loads(result.stdout)
+    assert data["status"] == "ok" and Path(data["outputs"]["xodr"]).is_file()
+    assert data["report"]["osm"]["ways"] == 28
+
+
+# --- incremental --------------------------------------------------------------------------------------
+
+
+def test_rebuild_of_unchanged_input_reuses_every_stage(existing_build):
+    before = manifest(existing_build)
+    result = build(SAMPLE, "-o", existing_build, "-q")
+    assert result.exit_code == 0
+    assert set(statuses(existing_build).values()) <= {"unchanged", "unavailable"}
+    after = manifest(existing_build)
+    assert after["artifacts"] == before["artifacts"]  # same outputs, byte for byte (sha256)
+    assert (existing_build / f"{existing_build.name}.xodr").is_file()
+
+
+def test_force_reruns_every_stage(existing_build):
+    assert build(SAMPLE, "-o", existing_build, "-q", "--force").exit_code == 0
+    assert {status for status in statuses(existing_build).values()} == {"ran", "unavailable"}
+
+
+def test_changing_an_option_reruns_only_what_depends_on_it(existing_build):
+    assert build(SAMPLE, "-o", existing_build, "-q", "--profile", "full").exit_code == 0
+    status = statuses(existing_build)
+    assert status["extract"] == "unchanged" and status["netconvert"] == "ran" and status["report"] == "ran"
+
+
+def test_changing_the_input_reruns_from_the_first_stage(existing_build, tmp_path):
+    changed = tmp_path / "sample.osm"
+    changed.write_text(SAMPLE.read_text().replace('name" v="Brückenweg"', 'name" v="Neue Brücke"'))
+    assert build(changed, "-o", existing_build, "-q").exit_code == 0
+    assert statuses(existing_build)["extract"] == "ran"
+
+
+def test_a_new_stage_plugs_in_without_touching_the_runner(tmp_path, temporary_stage):
+    def count_roads(context):
+        text = context.artifacts["xodr"].read_text()
+        context.output_path("extra/roads.txt").write_text(str(text.count("<road ")))
+        return StageOutput(files={"road_count": "extra/roads.txt"}, facts={"roads": text.count("<road ")})
+
+    temporary_stage("count", count_roads)
+    pipeline = pipeline_file(tmp_path, ["extract", "netconvert", "count", "mesh", "report"])
+    folder = tmp_path / "s"
+    assert build(SAMPLE, "--pipeline", pipeline, "-o", folder, "-q").exit_code == 0
+    assert statuses(folder) == {"extract": "ran", "netconvert": "ran", "count": "ran", "mesh": "unavailable",
+                                "report": "ran"}
+    assert int((folder / "extra" / "roads.txt").read_text()) > 0
+    assert build(SAMPLE, "--pipeline", pipeline, "-o", folder, "-q").exit_code == 0
+    assert statuses(folder)["count"] == "unchanged" and (folder / "extra" / "roads.txt").is_file()
+
+
+def test_a_stage_whose_input_nobody_made_is_skipped_with_a_note(tmp_path, temporary_stage):
+    temporary_stage("needs_mesh", lambda context: StageOutput(), inputs=("mesh",))
+    pipeline = pipeline_file(tmp_path, ["extract", "netconvert", "mesh", "needs_mesh", "report"])
+    result = build(SAMPLE, "--pipeline", pipeline, "-o", tmp_path / "s")
+    assert result.exit_code == 0
+    assert "needs_mesh: skipped, needs mesh" in result.stderr
+    assert statuses(tmp_path / "s")["needs_mesh"] == "skipped"
+
+
+# --- atomic -------------------------------------------------------------------------------------------
+
+
+def test_an_interrupt_during_a_stage_leaves_the_existing_build_byte_identical(existing_build,
+                                                                              temporary_stage):
+    def interrupt(context):
+        (context.folder / "half-written.bin").write_bytes(b"\0" * 1000)
+        raise KeyboardInterrupt
+
+    temporary_stage("interrupt", interrupt)
+    before = snapshot(existing_build)
+    pipeline = pipeline_file(existing_build.parent, ["extract", "netconvert", "interrupt", "report"])
+    result = build(SAMPLE, "--pipeline", pipeline, "-o", existing_build, "--force", "-q")
+    assert result.exit_code == 130 and "Interrupted" in result.stderr
+    assert snapshot(existing_build) == before
+    assert not leftovers(existing_build.parent)
+
+
+def test_a_failing_stage_leaves_the_existing_build_byte_identical(existing_build, temporary_stage):
+    from tavf_mapkit.errors import StageError
+
+    def fail(context):
+        context.log_path("failing").write_text("what went wrong\n")
+        raise StageError("simulated failure")
+
+    temporary_stage("failing", fail)
+    before = snapshot(existing_build)
+    pipeline = pipeline_file(existing_build.parent, ["extract", "netconvert", "failing", "report"])
+    result = build(SAMPLE, "--pipeline", pipeline, "-o", existing_build, "-q")
+    assert result.exit_code == 1
+    assert "simulated failure" in result.stderr and len(result.stderr.strip().splitlines()) == 1
+    assert snapshot(existing_build) == before and not leftovers(existing_build.parent)
+    kept_log = existing_build.parent / "sample.failed-failing.log"
+    assert kept_log.read_text() == "what went wrong\n" and str(kept_log) in result.stderr
+
+
+def test_a_netconvert_failure_is_a_clear_message_and_exit_code_1(existing_build, tmp_path):
+    profile = tmp_path / "broken.toml"
+    profile.write_text('extends = "carla"\n[osm]\n"no-such.option" = true\n')
+    before = snapshot(existing_build)
+    result = build(SAMPLE, "-o", existing_build, "--profile", profile)
+    assert result.exit_code == 1
+    error = result.stderr.strip().splitlines()[-1]
+    assert error.startswith(f"Error: {SAMPLE}: netconvert: On processing option '--no-such.option=true'")
+    assert "Traceback" not in result.output
+    assert snapshot(existing_build) == before
+    assert "No option with the name" in (existing_build.parent / "sample.failed-netconvert.log").read_text()
+
+
+SIGTERM_SCRIPT = textwrap.dedent("""
+    import sys, time
+    from pathlib import Path
+    from tavf_mapkit.cli.main import cli
+    from tavf_mapkit.pipeline.stages import Stage, StageOutput, register_stage
+
+    MARKER = Path(sys.argv[1])
+
+    @register_stage("slow")
+    class Slow(Stage):
+        inputs = ("xodr",)
+        def run(self, context):
+            (context.folder / "partial.bin").write_bytes(b"x" * 1000)
+            MARKER.write_text("started")
+            time.sleep(60)
+            return StageOutput()
+
+    sys.argv = ["mapkit", *sys.argv[2:]]
+    cli()
+""")
+
+
+def test_sigterm_during_a_stage_leaves_the_existing_build_byte_identical(existing_build, tmp_path):
+    script, marker = tmp_path / "slow_build.py", tmp_path / "started"
+    script.write_text(SIGTERM_SCRIPT)
+    pipeline = pipeline_file(tmp_path, ["extract", "netconvert", "slow", "report"])
+    before = snapshot(existing_build)
+    process = subprocess.Popen([sys.executable, str(script), str(marker), "build", str(SAMPLE), "--pipeline",
+                                str(pipeline), "-o", str(existing_build), "--force", "-q"],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO)
+    deadline = time.monotonic() + 30
+    while not marker.exists() and time.monotonic() < deadline and process.poll() is None:
+        time.sleep(0.02)
+    assert marker.exists(), process.communicate()
+    process.send_signal(signal.SIGTERM)
+    _, stderr = process.communicate(timeout=30)
+    assert process.returncode == 130 and "Traceback" not in stderr
+    assert snapshot(existing_build) == before and not leftovers(existing_build.parent)
+
+
+def test_a_killed_builds_staging_folder_is_cleaned_up_by_the_next_build(existing_build):
+    stale = existing_build.parent / ".sample.staging-dead"
+    stale.mkdir()
+    (stale / "junk").write_text("left by a SIGKILLed build")
+    assert build(SAMPLE, "-o", existing_build, "-q").exit_code == 0
+    assert not stale.exists()
+
+
+# --- bad input and output -----------------------------------------------------------------------------
+
+
+def test_an_unwritable_output_folder_is_exit_code_2(tmp_path):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a folder")
+    result = build(SAMPLE, "-o", blocker / "sub" / "sample")
+    assert result.exit_code == 2 and "is not a folder" in result.stderr
+    assert "Traceback" not in result.output
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root can write into read-only folders")
+def test_a_read_only_parent_folder_is_exit_code_2(tmp_path):
+    parent = tmp_path / "ro"
+    parent.mkdir()
+    parent.chmod(0o555)
+    try:
+        result = build(SAMPLE, "-o", parent / "sample")
+        assert result.exit_code == 2 and "cannot write" in result.stderr
+    finally:
+        parent.chmod(0o755)
+
+
+def test_a_folder_that_is_not_a_build_is_never_replaced(tmp_path):
+    precious = tmp_path / "documents"
+    precious.mkdir()
+    (precious / "thesis.tex").write_text("years of work")
+    result = build(SAMPLE, "-o", precious)
+    assert result.exit_code == 2 and "not a mapkit build folder" in result.stderr
+    assert (precious / "thesis.tex").read_text() == "years of work"
+
+
+def test_a_truncated_osm_input_is_exit_code_2(tmp_path):
+    broken = tmp_path / "broken.osm"
+    broken.write_bytes(SAMPLE.read_bytes()[:5000])
+    result = build(broken, "-o", tmp_path / "b")
+    assert result.exit_code == 2
+    assert "not well-formed OSM XML" in result.stderr and str(broken) in result.stderr
+    assert not (tmp_path / "b").exists() and not leftovers(tmp_path)
+
+
+def test_missing_and_unknown_inputs_are_exit_code_2(tmp_path):
+    assert build(tmp_path / "missing.osm", "-o", tmp_path / "b").exit_code == 2
+    other = tmp_path / "input.csv"
+    other.write_text("a,b\n")
+    result = build(other, "-o", tmp_path / "b")
+    assert result.exit_code == 2 and "unknown input type" in result.stderr
+
+
+def test_a_sumo_net_with_a_doctype_is_refused(tmp_path):
+    hostile = tmp_path / "hostile.net.xml"
+    hostile.write_text('<?xml version="1.0"?>\n<!DOCTYPE net SYSTEM "file:///etc/passwd">\n'
+                       '<net version="1.9"><location netOffset="0,0" convBoundary="0,0,1,1" '
+                       'origBoundary="0,0,1,1" projParameter="!"/></net>\n')
+    result = build(hostile, "-o", tmp_path / "b")
+    assert result.exit_code == 2 and "DOCTYPE" in result.stderr
+
+
+# --- pipeline files -----------------------------------------------------------------------------------
+
+
+def test_pipeline_paths_are_relative_to_the_pipeline_file(tmp_path, monkeypatch):
+    area = tmp_path / "areas" / "west.geojson"
+    area.parent.mkdir()
+    ring = [[9.970, 53.553], [9.976, 53.553], [9.976, 53.559], [9.970, 53.559], [9.970, 53.553]]
+    area.write_text(json.dumps({"type": "Polygon", "coordinates": [ring]}))
+    pipeline = pipeline_file(tmp_path, ["extract", "netconvert", "report"],
+                             '[area]\npolygon_path = "areas/west.geojson"\n')
+    monkeypatch.chdir(REPO)  # somewhere else than the pipeline file
+    result = build(SAMPLE, "--pipeline", pipeline, "-o", tmp_path / "west", "-q")
+    assert result.exit_code == 0, result.output
+    data = manifest(tmp_path / "west")
+    assert {"role": "area.polygon_path", "path": str(area)}.items() <= data["inputs"][-1].items()
+    assert data["stages"][0]["facts"]["area"]["description"] == "polygon west.geojson"
+    assert data["stages"][0]["facts"]["ways"] < 28
+
+
+def test_tavf_pipeline_file_loads():
+    from tavf_mapkit.pipeline.config import load_pipeline
+
+    config = load_pipeline(REPO / "pipelines" / "tavf.toml")
+    assert config.name == "tavf" and config.section("area")["bbox"] == [9.95, 53.543, 10.01, 53.570]
+    assert config.section("mesh")["eps"] == 0.05
+    check = config.section("check")
+    assert check["reference_network_path"].name == "network.net.xml.gz"
+    assert check["gnss_trace_path"] == (REPO.parent / "shared" / "data" / "hamburg" / "gnss_ride_b4" /
+                                        "thomas.json").resolve()
+
+
+def test_sample_data_regenerates_byte_identical(tmp_path):
+    output = tmp_path / "again.osm"
+    generator = REPO / "sample_data" / "make_sample.py"
+    subprocess.run([sys.executable, str(generator), "-o", str(output)], check=True, capture_output=True)
+    assert output.read_bytes() == SAMPLE.read_bytes()
+
+
+# --- real data ----------------------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_build_of_real_jungfernstieg_osm(shared, tmp_path):
+    folder = tmp_path / "jungfernstieg"
+    result = build(shared(*JUNGFERNSTIEG), "-o", folder, "--profile", "full", "-q")
+    assert result.exit_code == 0, result.output
+    georeference = assert_georeference_usable(folder)
+    assert 53.548 < georeference["lat_0"] < 53.558 and 9.985 < georeference["lon_0"] < 10.006
+    report = json.loads((folder / "report" / "summary.json").read_text())
+    assert report["osm"]["ways"] == 700 and report["opendrive"]["roads"] > 100
+    assert manifest(folder)["attribution"] == "(c) OpenStreetMap contributors, ODbL 1.0"
+
+
+@pytest.mark.slow
+def test_build_of_real_tavf_sumo_net(shared, tmp_path):
+    folder = tmp_path / "tavf-net"
+    result = build(shared(*TAVF_NET), "-o", folder, "-q")
+    assert result.exit_code == 0, result.output
+    georeference = assert_georeference_usable(folder)
+    assert 53.543 < georeference["lat_0"] < 53.570  # centred on the network
+    assert (folder / "source" / "tavf-net.net.xml.gz").is_file()
+    report = json.loads((folder / "report" / "summary.json").read_text())
+    assert report["sumo_input"]["edges"] == 617 and report["sumo_net"]["traffic_lights"] == 43
+    assert manifest(folder)["attribution"]  # the DLR network was built from OSM
+
+
+@pytest.mark.slow
+def test_build_with_the_tavf_pipeline(shared, tmp_path):
+    folder = tmp_path / "tavf"
+    result = build(shared(*JUNGFERNSTIEG), "--pipeline", REPO / "pipelines" / "tavf.toml", "-o", folder, "-q")
+    assert result.exit_code == 0, result.output
+    data = manifest(folder)
+    assert data["pipeline"]["sections"]["netconvert"]["profile"] == "full"
+    roles = {item["role"]: item for item in data["inputs"]}
+    assert roles["check.gnss_trace_path"]["sha256"] and roles["check.reference_network_path"]["sha256"]
+    assert_georeference_usable(folder)
