@@ -43,15 +43,10 @@ class Location:
 
 def read_net_bytes(path: str | Path) -> bytes:
     """The uncompressed XML of a SUMO network; unreadable or corrupt files become InputErrors."""
+    from tavf_mapkit.xmlsafe import read_input_bytes
+
     name = str(path)
-    try:
-        raw = Path(path).read_bytes()
-    except FileNotFoundError:
-        raise InputError("file not found", file=name) from None
-    except IsADirectoryError:
-        raise InputError("is a directory, expected a SUMO network file", file=name) from None
-    except OSError as error:
-        raise InputError(f"cannot read: {error.strerror}", file=name) from None
+    raw = read_input_bytes(path, "a SUMO network file")
     if raw[:2] == b"\x1f\x8b":
         try:
             return gzip.decompress(raw)

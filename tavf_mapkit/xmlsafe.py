@@ -31,18 +31,22 @@ class XmlSource:
     root: object = None  # set by iterparse_safe once parsing has finished
 
 
-def read_xml_source(path: str | Path) -> XmlSource:
-    """Read a file for safe parsing; refuse DTD entity declarations (billion laughs, external entities)."""
+def read_input_bytes(path: str | Path, expected: str = "an XML file") -> bytes:
+    """A whole input file; a missing, unreadable or directory path becomes a one-line InputError."""
     name = str(path)
     try:
-        data = Path(path).read_bytes()
+        return Path(path).read_bytes()
     except FileNotFoundError:
         raise InputError("file not found", file=name) from None
     except IsADirectoryError:
-        raise InputError("is a directory, expected an XML file", file=name) from None
+        raise InputError(f"is a directory, expected {expected}", file=name) from None
     except OSError as error:
         raise InputError(f"cannot read: {error.strerror}", file=name) from None
-    return prepare_xml_bytes(data, name)
+
+
+def read_xml_source(path: str | Path) -> XmlSource:
+    """Read a file for safe parsing; refuse DTD entity declarations (billion laughs, external entities)."""
+    return prepare_xml_bytes(read_input_bytes(path), str(path))
 
 
 def prepare_xml_bytes(data: bytes, name: str = "<bytes>") -> XmlSource:

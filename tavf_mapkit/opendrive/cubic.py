@@ -37,38 +37,30 @@ class CubicProfile:
         index = np.searchsorted(self.s0, s, side="right") - 1
         return np.maximum(index, 0) if self.extend_first else index
 
-    def __call__(self, s) -> np.ndarray:
+    def _evaluate(self, s, order: int) -> np.ndarray:
         s = np.asarray(s, dtype=float)
         if not len(self.s0):
             return np.zeros_like(s)
         index = self.record_index(s)
-        valid = index >= 0
         i = np.maximum(index, 0)
         ds = s - self.s0[i]
         a, b, c, d = self.coefficients[i].T
-        return np.where(valid, a + ds * (b + ds * (c + ds * d)), 0.0)
+        if order == 0:
+            value = a + ds * (b + ds * (c + ds * d))
+        elif order == 1:
+            value = b + ds * (2.0 * c + 3.0 * d * ds)
+        else:
+            value = 2.0 * c + 6.0 * d * ds
+        return np.where(index >= 0, value, 0.0)
+
+    def __call__(self, s) -> np.ndarray:
+        return self._evaluate(s, 0)
 
     def derivative(self, s) -> np.ndarray:
-        s = np.asarray(s, dtype=float)
-        if not len(self.s0):
-            return np.zeros_like(s)
-        index = self.record_index(s)
-        valid = index >= 0
-        i = np.maximum(index, 0)
-        ds = s - self.s0[i]
-        _, b, c, d = self.coefficients[i].T
-        return np.where(valid, b + ds * (2.0 * c + 3.0 * d * ds), 0.0)
+        return self._evaluate(s, 1)
 
     def second_derivative(self, s) -> np.ndarray:
-        s = np.asarray(s, dtype=float)
-        if not len(self.s0):
-            return np.zeros_like(s)
-        index = self.record_index(s)
-        valid = index >= 0
-        i = np.maximum(index, 0)
-        ds = s - self.s0[i]
-        _, _, c, d = self.coefficients[i].T
-        return np.where(valid, 2.0 * c + 6.0 * d * ds, 0.0)
+        return self._evaluate(s, 2)
 
     @property
     def is_zero(self) -> bool:

@@ -204,7 +204,6 @@ def _param_poly3(params, length, ds, geometry=None):
     curve's true length, so that consecutive geometries stay joined even when the file's @length is off
     by a few millimetres (the validator reports such files)."""
     aU, bU, cU, dU, aV, bV, cV, dV, normalized = (params[:, i] for i in range(9))
-    p_end = np.where(normalized > 0.5, 1.0, length)
     # one table per distinct geometry: samples share the geometry's row
     ids = np.arange(len(ds)) if geometry is None else geometry
     _, first, row = np.unique(ids, return_index=True, return_inverse=True)
@@ -221,7 +220,6 @@ def _param_poly3(params, length, ds, geometry=None):
     scale = np.divide(total[row], length, out=np.ones_like(length), where=length > 0)
     p = _arc_length_inverse(speed, g_end, ds * scale, row)
     p = np.where(length > 0, p, 0.0)
-    del p_end
     u = aU + p * (bU + p * (cU + p * dU))
     v = aV + p * (bV + p * (cV + p * dV))
     u1 = bU + p * (2 * cU + 3 * dU * p)

@@ -147,6 +147,5 @@ class GeoReference:
     def carla_readable(self) -> bool:
         """CARLA reads only +lat_0 and +lon_0 from the geoReference and ignores +proj, zones and <offset>."""
         parameters = self.parameters
-        return "lat_0" in parameters and "lon_0" in parameters and self.offset is None or (
-            "lat_0" in parameters and "lon_0" in parameters and self.offset is not None
-            and self.offset.x == 0 and self.offset.y == 0 and self.offset.hdg == 0)
+        no_offset = self.offset is None or (self.offset.x, self.offset.y, self.offset.hdg) == (0.0, 0.0, 0.0)
+        return "lat_0" in parameters and "lon_0" in parameters and no_offset

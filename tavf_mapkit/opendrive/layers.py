@@ -32,15 +32,13 @@ def _lane_runs(sampling):
 
 
 def reference_line_features(odr, step: float):
-    arrays = odr.arrays
-    for index, road in enumerate(odr.roads):
+    for road in odr.roads:
         if road.length <= 0:
             continue
         s = np.append(np.arange(0.0, road.length, step), road.length)
         points = road.surface_point(s, 0.0)
         yield Feature("LineString", points, {"road": road.id, "name": road.name, "junction": road.junction,
                                               "length": road.length})
-    del arrays
 
 
 def lane_features(odr, step: float, layer: str):

@@ -3,8 +3,6 @@ unknown elements and userData go back verbatim under the parent they came from."
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 from lxml import etree
@@ -12,6 +10,7 @@ from lxml import etree
 from tavf_mapkit.opendrive.cubic import CubicProfile
 from tavf_mapkit.opendrive.geometry import ELEMENT_NAMES, PARAMETER_NAMES, GeometryKind
 from tavf_mapkit.opendrive.network import OpenDriveMap
+from tavf_mapkit.fileutil import write_bytes_atomic
 from tavf_mapkit.xmlsafe import safe_parser
 
 
@@ -75,16 +74,7 @@ def to_xml(odr: OpenDriveMap) -> bytes:
 
 def write_opendrive(odr: OpenDriveMap, path: str | Path) -> None:
     """Write atomically: a temporary file beside the target, then a rename."""
-    path = Path(path)
-    data = to_xml(odr)
-    fd, temporary = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as stream:
-            stream.write(data)
-        os.replace(temporary, path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
+    write_bytes_atomic(path, to_xml(odr))
 
 
 def _header(root, header) -> None:
