@@ -34,6 +34,10 @@ CRS_CHOICES = ("tmerc", "utm", "keep")
 # Options every run gets: no schema look-ups (hermetic, no network), every warning on its own line so the
 # log can be counted by kind (netconvert otherwise folds repeats into "N total messages of type ...").
 _ALWAYS = ["--xml-validation=never", "--xml-validation.net=never", "--aggregate-warnings=-1"]
+# With our centred transverse Mercator the projected coordinates are already small, so netconvert's shift of
+# the network to (0, 0) is switched off: local (0, 0) is then +lat_0/+lon_0 and the OpenDRIVE needs no
+# <offset>, which CARLA ignores (it would misplace the map by the offset). SUMO's netOffset becomes 0.
+_AT_PROJECTION_ORIGIN = ["--offset.disable-normalization=true"]
 _QUOTED = re.compile(r"'[^']*'")
 _NUMBER = re.compile(r"(?<![A-Za-z_])-?\d+(?:\.\d+)?")
 _NUMBER_RUN = re.compile(r"#(?:[#,]*#)?")
@@ -288,7 +292,7 @@ def _osm_projection(crs: str, centre: tuple[float, float] | None) -> list[str]:
         raise InputError("--crs keep needs a SUMO network input (an OSM file has no projection to keep)")
     if centre is None:
         raise StageError("no centre for the transverse Mercator projection (the extract has no nodes)")
-    return ["--proj", tmerc_centred_on(*centre)]
+    return ["--proj", tmerc_centred_on(*centre), *_AT_PROJECTION_ORIGIN]
 
 
 def _convert_sumo_net(binary: Path, source: Path, crs: str, profile_arguments: list[str], clip_bbox,
@@ -338,7 +342,7 @@ def _convert_sumo_net(binary: Path, source: Path, crs: str, profile_arguments: l
             from tavf_mapkit.sumonet import plain_geo_centre
 
             nodes = conversion.cwd / f"{prefix}.nod.xml"
-            projection = ["--proj", tmerc_centred_on(*plain_geo_centre(nodes))]
+            projection = ["--proj", tmerc_centred_on(*plain_geo_centre(nodes)), *_AT_PROJECTION_ORIGIN]
             conversion.projection = projection[1]
         plain_inputs = ["--node-files", f"{prefix}.nod.xml", "--edge-files", f"{prefix}.edg.xml"]
         for option, suffix in (("--connection-files", "con"), ("--tllogic-files", "tll")):

@@ -143,14 +143,28 @@ def test_sample_converts_cleanly_under_both_profiles(profile, tmp_path):
     assert len(net.findall("tlLogic")) == 1  # the signalised junction
 
 
-def test_offset_is_the_negated_net_offset_and_projected_is_local_plus_offset(tmp_path):
-    """The sign convention georeference code relies on, checked with coordinates, not just attributes."""
-    convert_osm(SAMPLE, tmp_path)
+def _offset_xy(georeference: dict) -> tuple[float, float]:
+    offset = georeference["offset"] or {"x": 0.0, "y": 0.0, "hdg": 0.0}
+    assert offset.get("hdg", 0) == 0
+    return offset["x"], offset["y"]
+
+
+@pytest.mark.parametrize("crs", ["tmerc", "utm"])
+def test_offset_is_the_negated_net_offset_and_projected_is_local_plus_offset(crs, tmp_path):
+    """The sign convention georeference code relies on, checked with coordinates, not just attributes.
+
+    With the centred tmerc the network is not shifted at all (local (0, 0) = +lat_0/+lon_0, what CARLA
+    assumes); with UTM netconvert shifts it to (0, 0) and writes the negated netOffset into <offset>.
+    """
+    convert_osm(SAMPLE, tmp_path, crs=crs)
     net_offset = read_location(tmp_path / "out.net.xml").net_offset
     georeference = read_xodr_georeference(tmp_path / "out.xodr")
-    offset = georeference["offset"]
-    assert (offset["x"], offset["y"]) == (-net_offset[0], -net_offset[1])
-    assert offset["hdg"] == 0
+    offset = _offset_xy(georeference)
+    assert offset == (-net_offset[0], -net_offset[1])
+    if crs == "tmerc":
+        assert georeference["offset"] is None and tuple(net_offset) == (0.0, 0.0)
+    else:
+        assert min(abs(offset[0]), abs(offset[1])) > 1000  # UTM eastings/northings, shifted to (0, 0)
 
     to_wgs84 = pyproj.Transformer.from_crs(georeference["proj"], "EPSG:4326", always_xy=True)
     to_metres = pyproj.Transformer.from_crs("EPSG:4326", georeference["proj"], always_xy=True)
@@ -162,11 +176,11 @@ def test_offset_is_the_negated_net_offset_and_projected_is_local_plus_offset(tmp
         points = np.column_stack(to_metres.transform(lon, lat))
         return np.sqrt(((points[:, None, :] - nodes[None, :, :]) ** 2).sum(-1)).min(1)
 
-    shift = np.array([offset["x"], offset["y"]])
-    right = distance_to_nearest_node(local + shift)
-    wrong = distance_to_nearest_node(local - shift)
+    right = distance_to_nearest_node(local + np.array(offset))
     assert np.median(right) < 60 and right.max() < 160  # roads run between OSM nodes up to 150 m apart
-    assert np.median(wrong) > 300
+    if crs == "utm":
+        wrong = distance_to_nearest_node(local - np.array(offset))
+        assert np.median(wrong) > 300
 
 
 @pytest.mark.parametrize("name", ["berlin-siegessaeule.osm.gz", "krautsand.osm.gz"])
@@ -182,7 +196,7 @@ def test_jungfernstieg_converts_with_a_usable_georeference(shared, tmp_path):
     conversion, _ = convert_osm(shared(*JUNGFERNSTIEG), tmp_path, "full")
     georeference = assert_georeference_usable(tmp_path / "out.xodr")
     net_offset = read_location(tmp_path / "out.net.xml").net_offset
-    assert (georeference["offset"]["x"], georeference["offset"]["y"]) == (-net_offset[0], -net_offset[1])
+    assert _offset_xy(georeference) == (-net_offset[0], -net_offset[1]) == (0.0, 0.0)
     assert sum(conversion.messages.warnings.values()) > 0
     log = (tmp_path / "netconvert.log").read_text()
     assert log.startswith("# Eclipse SUMO netconvert") and "--osm-files" in log and "Warning:" in log

@@ -12,7 +12,7 @@ from tavf_mapkit.pipeline.stages import Stage, StageOutput, register_stage
 @register_stage("netconvert")
 class NetconvertStage(Stage):
     inputs = ("source",)
-    version = "1"
+    version = "2"  # 2: local (0, 0) at the projection origin (no <offset>)
     description = "SUMO netconvert: road network and OpenDRIVE"
 
     def options(self, context: BuildContext) -> dict:
