@@ -18,12 +18,20 @@ def write_bytes_atomic(path: str | Path, data: bytes) -> None:
     except PermissionError:
         raise InputError("output folder is not writable", file=str(path)) from None
     try:
+        # mkstemp creates 0600; give the file the mode a plain open() would (0666 minus the umask)
+        os.fchmod(fd, 0o666 & ~_umask())
         with os.fdopen(fd, "wb") as stream:
             stream.write(data)
         os.replace(temporary, path)
     except BaseException:
         Path(temporary).unlink(missing_ok=True)
         raise
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
 
 
 def write_text_atomic(path: str | Path, text: str) -> None:

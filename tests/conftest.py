@@ -55,3 +55,34 @@ def tavf_xodr(tmp_path_factory) -> Path:
     subprocess.run([netconvert_binary(), "-s", str(net), "--opendrive-output", str(out)], check=True,
                    capture_output=True)
     return out
+
+
+def _build(tmp_path_factory, name: str, source: Path) -> Path:
+    """Run ``mapkit build SOURCE`` with the default stages into a fresh folder; return the build folder."""
+    from click.testing import CliRunner
+
+    from tavf_mapkit.cli.main import cli
+
+    out = tmp_path_factory.mktemp(f"build-{name}") / name
+    result = CliRunner().invoke(cli, ["build", str(source), "-o", str(out)], catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+    return out
+
+
+@pytest.fixture(scope="session")
+def sample_build_dir(tmp_path_factory) -> Path:
+    """The quickstart build of sample_data/tavf_synthetic.osm (default stages), once per session."""
+    return _build(tmp_path_factory, "sample", REPO / "sample_data" / "tavf_synthetic.osm")
+
+
+@pytest.fixture(scope="session")
+def jungfernstieg_build(tmp_path_factory) -> Path:
+    """A build of the real OSM extract of Jungfernstieg (default stages), once per session."""
+    return _build(tmp_path_factory, "jungfernstieg",
+                  shared_path("hamburg", "jungfernstieg_osm", "jungfernstieg_2023-03-10.osm"))
+
+
+@pytest.fixture(scope="session")
+def tavf_dlr_build(tmp_path_factory) -> Path:
+    """A build of DLR's TAVF SUMO network (default stages), once per session."""
+    return _build(tmp_path_factory, "tavf-dlr", shared_path("hamburg", "tavf_dlr_sumo_net", "network.net.xml.gz"))

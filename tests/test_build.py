@@ -100,7 +100,8 @@ def pipeline_file(folder: Path, stages: list[str], extra: str = "") -> Path:
 def test_sample_build_has_the_documented_layout(sample_build):
     name = sample_build.name
     for relative in (f"{name}.xodr", f"{name}.net.xml", f"source/{name}.osm", "report/summary.json",
-                     "report/summary.txt", "logs/netconvert.log", "manifest.json"):
+                     "report/summary.txt", "logs/netconvert.log", "manifest.json", "mesh/mesh.json",
+                     "mesh/surface.npz", "report/mesh_preview.png", "collision/world.json"):
         assert (sample_build / relative).is_file(), relative
     assert not leftovers(sample_build.parent)
 
@@ -120,7 +121,9 @@ def test_manifest_records_inputs_tools_options_stages_and_attribution(sample_bui
     assert netconvert["options"]["profile"] == "carla" and netconvert["options"]["crs"] == "tmerc"
     assert set(netconvert["outputs"]) == {"net", "xodr", "netconvert_log"}
     assert netconvert["inputs"]["source"] == stages["extract"]["outputs"]["source"]["sha256"]
-    assert stages["mesh"]["status"] == "unavailable" and stages["mesh"]["note"] == "stage mesh not available"
+    assert all(record["status"] == "ran" for record in data["stages"]), [r["status"] for r in data["stages"]]
+    assert stages["mesh"]["inputs"]["xodr"] == netconvert["outputs"]["xodr"]["sha256"]
+    assert stages["collision"]["inputs"]["mesh"] == stages["mesh"]["outputs"]["mesh"]["sha256"]
     assert_georeference_usable(sample_build)
 
 
@@ -136,7 +139,7 @@ def test_human_summary_and_progress_lines(tmp_path):
     result = build(SAMPLE, "-o", tmp_path / "s")
     assert result.exit_code == 0
     assert "[2/7] netconvert: ran in" in result.stderr
-    assert "[4/7] mesh: stage mesh not available" in result.stderr
+    assert "[4/7] mesh: ran in" in result.stderr and "[5/7] collision: ran in" in result.stderr
     assert "xodr    s.xodr:" in result.stdout and "(c) OpenStreetMap contributors" in result.stdout
     assert len(result.stdout.splitlines()) < 25  # one screen
 
@@ -164,7 +167,7 @@ def test_rebuild_of_unchanged_input_reuses_every_stage(existing_build):
 
 def test_force_reruns_every_stage(existing_build):
     assert build(SAMPLE, "-o", existing_build, "-q", "--force").exit_code == 0
-    assert {status for status in statuses(existing_build).values()} == {"ran", "unavailable"}
+    assert {status for status in statuses(existing_build).values()} == {"ran"}
 
 
 def test_changing_an_option_reruns_only_what_depends_on_it(existing_build):
@@ -187,10 +190,10 @@ def test_a_new_stage_plugs_in_without_touching_the_runner(tmp_path, temporary_st
         return StageOutput(files={"road_count": "extra/roads.txt"}, facts={"roads": text.count("<road ")})
 
     temporary_stage("count", count_roads)
-    pipeline = pipeline_file(tmp_path, ["extract", "netconvert", "count", "mesh", "report"])
+    pipeline = pipeline_file(tmp_path, ["extract", "netconvert", "count", "not_installed", "report"])
     folder = tmp_path / "s"
     assert build(SAMPLE, "--pipeline", pipeline, "-o", folder, "-q").exit_code == 0
-    assert statuses(folder) == {"extract": "ran", "netconvert": "ran", "count": "ran", "mesh": "unavailable",
+    assert statuses(folder) == {"extract": "ran", "netconvert": "ran", "count": "ran", "not_installed": "unavailable",
                                 "report": "ran"}
     assert int((folder / "extra" / "roads.txt").read_text()) > 0
     assert build(SAMPLE, "--pipeline", pipeline, "-o", folder, "-q").exit_code == 0
@@ -199,7 +202,7 @@ def test_a_new_stage_plugs_in_without_touching_the_runner(tmp_path, temporary_st
 
 def test_a_stage_whose_input_nobody_made_is_skipped_with_a_note(tmp_path, temporary_stage):
     temporary_stage("needs_mesh", lambda context: StageOutput(), inputs=("mesh",))
-    pipeline = pipeline_file(tmp_path, ["extract", "netconvert", "mesh", "needs_mesh", "report"])
+    pipeline = pipeline_file(tmp_path, ["extract", "netconvert", "needs_mesh", "report"])
     result = build(SAMPLE, "--pipeline", pipeline, "-o", tmp_path / "s")
     assert result.exit_code == 0
     assert "needs_mesh: skipped, needs mesh" in result.stderr
@@ -437,3 +440,16 @@ def test_build_with_the_tavf_pipeline(shared, tmp_path):
     roles = {item["role"]: item for item in data["inputs"]}
     assert roles["check.gnss_trace_path"]["sha256"] and roles["check.reference_network_path"]["sha256"]
     assert_georeference_usable(folder)
+
+
+def test_atomic_writes_get_the_usual_file_mode(tmp_path):
+    """Files written beside-then-renamed are readable by others like any file (mkstemp alone gives 0600)."""
+    from tavf_mapkit.fileutil import write_text_atomic
+
+    target = tmp_path / "out.json"
+    old = os.umask(0o022)
+    try:
+        write_text_atomic(target, "{}")
+    finally:
+        os.umask(old)
+    assert target.stat().st_mode & 0o777 == 0o644

@@ -6,8 +6,6 @@ import glob
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
 from tavf_mapkit.opendrive import load_opendrive, loads_opendrive
 from tavf_mapkit.opendrive.sampling import sample_lane_borders
@@ -67,19 +65,27 @@ def test_geo_reference_can_be_rewritten(tmp_path):
 
 
 @pytest.mark.slow
-@settings(max_examples=200, deadline=None)
-@given(st.data())
-def test_consecutive_geometries_of_netconvert_output_meet(tavf_xodr_loaded, data):
-    """Property: the end of each planView geometry is the start of the next (netconvert output)."""
-    odr = tavf_xodr_loaded
-    road = data.draw(st.sampled_from([r for r in odr.roads if len(r.reference_line.geometries) > 1]))
-    geometries = road.reference_line.geometries
-    k = data.draw(st.integers(0, len(geometries) - 2))
-    table = road.reference_line.table
-    x, y, hdg, _ = table.evaluate(np.array([k]), np.array([geometries[k].length]))
-    nxt = geometries[k + 1]
-    assert np.hypot(x[0] - nxt.x, y[0] - nxt.y) < 1e-3
-    assert abs((hdg[0] - nxt.hdg + np.pi) % (2 * np.pi) - np.pi) < 1e-3
+def test_consecutive_geometries_of_netconvert_output_meet(tavf_xodr_loaded, tavf_xodr):
+    """Every planView joint of netconvert's TAVF file: the end of a geometry, evaluated by us, is the start of
+    the next within 1 mm. Headings agree within 1 mrad except where the file itself kinks, and those joints
+    are exactly the ones ``mapkit validate`` reports as geometry.kink (an independent code path)."""
+    from tavf_mapkit.validate import validate_file
+
+    kinks = set()
+    for road in tavf_xodr_loaded.roads:
+        geometries = road.reference_line.geometries
+        if len(geometries) < 2:
+            continue
+        k = np.arange(len(geometries) - 1)
+        x, y, hdg, _ = road.reference_line.table.evaluate(k, np.array([g.length for g in geometries[:-1]]))
+        following = geometries[1:]
+        gap = np.hypot(x - [g.x for g in following], y - [g.y for g in following])
+        assert gap.max() < 1e-3, (road.id, gap.max())
+        turn = np.abs((hdg - [g.hdg for g in following] + np.pi) % (2 * np.pi) - np.pi)
+        kinks |= {(road.id, round(following[i].s, 3)) for i in np.flatnonzero(turn > 1e-3)}
+    reported = validate_file(tavf_xodr, rules=["geometry.kink"]).findings
+    assert kinks == {(f.road, round(f.s, 3)) for f in reported}
+    assert len(kinks) <= 2  # netconvert 1.28 writes one on DLR's TAVF network
 
 
 @pytest.fixture(scope="module")

@@ -241,3 +241,44 @@ def test_load_generator_reads_chunked_answers_and_counts_server_faults():
     with fault_server(sleepy) as server:
         report = run_load(LoadPlan(url=server.url, **plan))
     assert report["ok"] == 0 and set(report["errors_by_kind"]) == {TIMEOUT}
+
+
+def test_process_client_answers_like_the_thread_client_and_survives_its_child(udm):
+    from twin.udm.process_client import UdmProcessClient
+
+    url, store = udm
+    client = UdmProcessClient(url, timeout_s=1.0)
+    try:
+        t_publish = time.monotonic()
+        assert client.submit(*HAMBURG, side_m=200.0, frame=3, t_publish=t_publish)
+        assert client.flush(5.0)
+        (response,) = client.poll()
+        assert response.ok and response.frame == 3 and response.t_publish == t_publish
+        assert {o.id for o in response.objects} == {o.id for o in store.in_bbox(square_around(*HAMBURG, 200.0))}
+        assert t_publish <= response.t_sent <= response.t_received  # one clock across both processes
+        assert not client.submit(math.nan, 9.99, frame=4)
+        assert [r.status for r in client.poll()] == [INVALID_FIX]
+        client._process.kill()  # the child dies: the caller still never sees an exception
+        client._process.wait(5)
+        deadline = time.monotonic() + 5.0
+        while client.submit(*HAMBURG, frame=5) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert client.poll()[-1].status == "internal"
+    finally:
+        client.close()
+    stats = client.stats()
+    assert stats.ok == 1 and stats.errors.get(INVALID_FIX) == 1 and stats.errors.get("internal", 0) >= 1
+
+
+def test_process_client_accounts_for_every_query_when_the_udm_is_unreachable():
+    from twin.udm.process_client import UdmProcessClient
+
+    with UdmProcessClient(f"http://127.0.0.1:{closed_port()}", max_retries=1, backoff_s=0.01,
+                          queue_size=2) as client:
+        for frame in range(20):
+            assert client.submit(*HAMBURG, frame=frame)
+        client.flush(5.0)
+        responses = client.poll()
+    stats = client.stats()
+    assert responses and all(r.status == UNREACHABLE and r.attempts == 2 for r in responses)
+    assert stats.submitted == 20 == len(responses) + stats.dropped + stats.abandoned

@@ -244,7 +244,7 @@ def write_build(folder, signals=SIGNALS):
 def test_seed_from_build_reads_osm_nodes_and_signals_geojson(tmp_path):
     store = SqliteRtreeStore()
     counts = seed_from_build(store, write_build(tmp_path / "build"))
-    assert counts == {"osm": 5, "signals.geojson": 2}
+    assert counts == {"osm": 5, "signals.geojson": 2, "opendrive": 0}
     objects = {o.id: o for o in store.in_bbox(BBox(9.98, 53.54, 10.0, 53.56))}
     assert set(objects) == {"osm-node-101", "osm-node-102", "osm-node-103", "osm-node-104", "osm-node-105",
                             "signals-0", "sig-7"}
@@ -265,7 +265,7 @@ def test_seed_from_build_reads_osm_nodes_and_signals_geojson(tmp_path):
 def test_seeding_twice_replaces_rather_than_duplicates(tmp_path):
     store = SqliteRtreeStore()
     build = write_build(tmp_path / "build", signals=None)
-    assert seed_from_build(store, build) == {"osm": 5, "signals.geojson": 0}
+    assert seed_from_build(store, build) == {"osm": 5, "signals.geojson": 0, "opendrive": 0}
     seed_from_build(store, build)
     assert store.count() == 5
 

@@ -15,6 +15,11 @@ COMMANDS = {
     "export": "tavf_mapkit.cli.export:export",
     "extract": "tavf_mapkit.cli.extract:extract",
     "build": "tavf_mapkit.cli.build:build",
+    "mesh": "tavf_mapkit.cli.mesh:mesh",
+    "validate": "tavf_mapkit.cli.validate:validate",
+    "compare": "tavf_mapkit.cli.compare:compare",
+    "match-trace": "tavf_mapkit.cli.match_trace:match_trace",
+    "baseline": "tavf_mapkit.cli.baseline:baseline",
 }
 
 

@@ -122,20 +122,33 @@ def section_samples(arrays, step: float, include_end: bool = True, sections: np.
 
 def sample_lanes(odr, step: float = 0.5, include_end: bool = True) -> LaneSampling:
     """Border offsets of every side lane of every lane section, sampled every ``step`` metres of s."""
+    return sample_lanes_at(odr, *section_samples(odr.arrays, step, include_end))
+
+
+def sample_lanes_at(odr, sample_section: np.ndarray, sample_s: np.ndarray) -> LaneSampling:
+    """Reference frame at each sample and border offsets of every side lane of its section.
+
+    Samples must be grouped by section (all samples of a section contiguous, any order inside). Pairs come
+    out lane by lane, and inside a lane in sample order.
+    """
     arrays = odr.arrays
-    sample_section, sample_s = section_samples(arrays, step, include_end)
+    sample_section = np.asarray(sample_section, dtype=np.int64)
+    sample_s = np.asarray(sample_s, dtype=float)
     road = arrays.section_road[sample_section]
     x, y, z, heading, slope, superelevation, lane_offset = arrays.reference(road, sample_s)
 
-    # samples of each section are contiguous: where they start and how many there are
     n_sections = len(arrays.section_s0)
     counts = np.bincount(sample_section, minlength=n_sections)
-    starts = np.cumsum(counts) - counts
+    # first sample of each section (samples are grouped, so the first occurrence starts the run)
+    starts = np.zeros(n_sections, dtype=np.int64)
+    if len(sample_section):
+        present, first = np.unique(sample_section, return_index=True)
+        starts[present] = first
     lane_counts = counts[arrays.lane_section]
     pair_lane = np.repeat(np.arange(len(arrays.lane_id)), lane_counts)
     lane_pair_starts = np.cumsum(lane_counts) - lane_counts
-    pair_sample = starts[arrays.lane_section][pair_lane] + (np.arange(len(pair_lane)) - np.repeat(lane_pair_starts,
-                                                                                                 lane_counts))
+    within = np.arange(len(pair_lane)) - np.repeat(lane_pair_starts, lane_counts)
+    pair_sample = starts[arrays.lane_section][pair_lane] + within
     s = sample_s[pair_sample]
     width = arrays.lane_width.evaluate(pair_lane, s)
     border = arrays.lane_border.evaluate(pair_lane, s)
@@ -144,8 +157,7 @@ def sample_lanes(odr, step: float = 0.5, include_end: bool = True) -> LaneSampli
     rank = arrays.lane_rank[pair_lane]
     t_inner = np.empty(len(pair_lane))
     t_outer = np.empty(len(pair_lane))
-    # lanes of one side are consecutive rows, so the inner neighbour's pair is exactly one section-sample
-    # count earlier; walking outwards rank by rank keeps this a handful of vectorised steps
+    # lanes of one side are consecutive rows: the inner neighbour's pair is one section-sample count earlier
     for r in range(int(rank.max(initial=-1)) + 1):
         idx = np.flatnonzero(rank == r)
         inner = lane_offset[pair_sample[idx]] if r == 0 else t_outer[idx - lane_counts[pair_lane[idx]]]
@@ -153,6 +165,7 @@ def sample_lanes(odr, step: float = 0.5, include_end: bool = True) -> LaneSampli
         t_outer[idx] = np.where(uses_border[idx], border[idx], inner + sign[idx] * width[idx])
     return LaneSampling(odr, sample_section, sample_s, x, y, z, heading, slope, superelevation, lane_offset,
                         pair_lane, pair_sample, t_inner, t_outer)
+
 
 
 @dataclass(frozen=True)

@@ -9,6 +9,8 @@ from twin import __version__
 
 COMMANDS = {
     "udm": "twin.cli.udm:udm",
+    "drive": "twin.cli.drive:drive",
+    "replay": "twin.cli.replay:replay",
 }
 
 

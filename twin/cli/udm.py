@@ -20,6 +20,7 @@ def udm() -> None:
     $ twin udm serve --seed build/sample --token s3cret
     $ curl 'http://127.0.0.1:8765/objects?lat=53.55&lon=9.99&radius=150'
     $ twin udm bench-load --url http://127.0.0.1:8765 --vehicles 50 --rate 10 --duration 60
+    $ twin udm bench --map build/tavf-dlr --url http://127.0.0.1:8765 --requests 200
 
     The API, layers and error codes are described in docs/udm-api.md and served at /openapi.json.
     """
@@ -36,8 +37,8 @@ def udm() -> None:
               help="Bearer token data providers need for POST/DELETE. Default: a random one, printed at "
                    "start.")
 @click.option("--seed", "seed_dir", type=click.Path(file_okay=False, path_type=Path),
-              help="Build folder whose traffic signs and signals (OSM nodes, signals.geojson) become layer-2 "
-                   "objects before serving.")
+              help="Build folder whose traffic signs and signals (OpenDRIVE signals and objects, OSM nodes, "
+                   "signals.geojson) become layer-2 objects before serving.")
 @click.option("--purge-interval", default=60.0, show_default=True, type=click.FloatRange(min=0.1),
               help="Seconds between deletions of expired objects (queries never return them anyway).")
 @click.option("--log-level", default="warning", show_default=True,
@@ -49,7 +50,7 @@ def serve(db_path: Path | None, host: str, port: int, token: str | None, seed_di
 
     \b
     $ twin udm serve --seed build/sample
-    UDM http://127.0.0.1:8765  store=memory  objects=412  (seeded: osm 412, signals.geojson 0)
+    UDM http://127.0.0.1:8765  store=memory  objects=426  (seeded: osm 412, signals.geojson 0, opendrive 14)
     token: 8fa2...  (set --token or TWIN_UDM_TOKEN to choose one)
 
     Reads are open to anyone who can reach the port; writes need 'Authorization: Bearer TOKEN':
@@ -139,3 +140,47 @@ def bench_load(url: str, vehicles: int, rate: float, duration: float, lat: float
     plan = LoadPlan(url=url, vehicles=vehicles, rate_hz=rate, duration_s=duration, lat=lat, lon=lon,
                     area_radius_m=area_radius, side_m=side, timeout_s=timeout, seed=seed)
     click.echo(json.dumps(run_load(plan), indent=2))
+
+
+@udm.command("bench")
+@click.option("--map", "map_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
+              metavar="BUILD", help="Build folder the twin drives on (with its collision world).")
+@click.option("--url", default="http://127.0.0.1:8765", show_default=True, help="Base URL of the UDM.")
+@click.option("--requests", default=200, show_default=True, type=click.IntRange(3, 100_000),
+              help="Queries on each side (the drive lasts requests x every x 0.05 s of simulated time).")
+@click.option("--every", default=10, show_default=True, type=click.IntRange(1, 1000),
+              help="The twin asks every N steps (twin drive --udm-every).")
+@click.option("--side", default=200.0, show_default=True, type=click.FloatRange(1.0, 10_000.0),
+              help="Side in metres of the square asked for (twin drive --udm-bbox).")
+@click.option("--seed", default=0, show_default=True, help="Seed of the drive's random route.")
+@click.option("--timeout", default=1.0, show_default=True, type=click.FloatRange(0.01, 60.0),
+              help="Seconds before a request counts as a timeout.")
+@click.option("--client", type=click.Choice(["process", "thread"]), default="process", show_default=True,
+              help="How the twin runs its UDM client: a child process (the default) or a thread beside the "
+                   "simulation (to see what the GIL costs).")
+@click.option("--allow-remote", is_flag=True,
+              help="Permit a URL that is not loopback. Only benchmark a server you may load.")
+def bench(map_dir: Path, url: str, requests: int, every: int, side: float, seed: int, timeout: float,
+          client: str, allow_remote: bool) -> None:
+    """Compare UDM latency from inside a running twin with the same requests sent standalone (JSON).
+
+    \b
+    $ twin udm serve --seed build/tavf-dlr &
+    $ twin udm bench --map build/tavf-dlr --url http://127.0.0.1:8765 --requests 200
+    {"standalone_ms": {"min": 2.1, "mean": 3.4, "p95": 5.0, ...}, "in_twin_ms": {...},
+     "overhead_ratio": 1.02, "target_ratio": 1.05, ...}
+
+    The twin drives a random route with the UDM hook; its queries (centres, side, intervals) are then sent
+    again from this process by a plain client. Both are timed with time.monotonic() from publish to the
+    parsed answer; overhead_ratio = mean in twin / mean standalone. See benchmarks/bench_udm_overhead.py.
+    """
+    from twin.udm.bench import run_bench
+    from twin.udm.loadgen import is_loopback_url
+
+    if not url.startswith(("http://", "https://")):
+        raise InputError(f"--url {url!r} is not an http(s) URL")
+    if not is_loopback_url(url) and not allow_remote:
+        raise InputError(f"--url {url!r} is not a loopback address; pass --allow-remote if you may load it")
+    result = run_bench(map_dir, url, requests, every=every, side_m=side, seed=seed, timeout_s=timeout,
+                       client=client)
+    click.echo(json.dumps(result, indent=2))

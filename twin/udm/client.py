@@ -87,6 +87,7 @@ class ClientStats:
     retries: int = 0
     ok: int = 0
     errors: dict[str, int] = field(default_factory=dict)
+    abandoned: int = 0  # still queued when the client closed, never sent
 
     @property
     def error_count(self) -> int:
@@ -114,6 +115,7 @@ class UdmClient:
         layers: tuple[int, ...] | None = None,
         types: tuple[str, ...] | None = None,
         headers: dict[str, str] | None = None,
+        start_worker: bool = True,
     ) -> None:
         self.base_url = base_url
         self.timeout_s = timeout_s
@@ -133,8 +135,10 @@ class UdmClient:
         self._in_flight = 0
         self._counts: Counter[str] = Counter()
         self._stopping = threading.Event()
+        # Without the worker, the owner fetches on its own thread with open_http() and fetch().
         self._thread = threading.Thread(target=self._run, name="udm-client", daemon=True)
-        self._thread.start()
+        if start_worker:
+            self._thread.start()
 
     # --- the caller's side: never blocks on the network, never raises ------------------------------------
 
@@ -175,6 +179,7 @@ class UdmClient:
             submitted=counts.get("submitted", 0), dropped=counts.get("dropped", 0),
             dropped_responses=counts.get("dropped_responses", 0), requests=counts.get("requests", 0),
             retries=counts.get("retries", 0), ok=counts.get("ok", 0), errors=errors,
+            abandoned=counts.get("abandoned", 0),
         )
 
     def flush(self, timeout_s: float = 5.0) -> bool:
@@ -192,8 +197,10 @@ class UdmClient:
         """Stop the worker (an in-flight request finishes or times out first) and join it."""
         self._stopping.set()
         with self._lock:
+            self._counts["abandoned"] += len(self._pending)
+            self._pending.clear()
             self._lock.notify_all()
-        if self._thread is not threading.current_thread():
+        if self._thread.ident is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout_s)
 
     def __enter__(self) -> Self:
@@ -205,10 +212,24 @@ class UdmClient:
 
     # --- the worker's side -------------------------------------------------------------------------------
 
-    def _run(self) -> None:
+    def open_http(self) -> httpx.Client:
+        """The HTTP client the worker uses (for callers that fetch synchronously with ``fetch``)."""
         # trust_env=False: proxy variables must not reroute what is meant to be a direct UDM connection.
-        with httpx.Client(base_url=self.base_url, timeout=self.timeout_s, headers=self._headers,
-                          trust_env=False, follow_redirects=False) as http:
+        return httpx.Client(base_url=self.base_url, timeout=self.timeout_s, headers=self._headers,
+                            trust_env=False, follow_redirects=False)
+
+    def fetch(self, http: httpx.Client, query: UdmQuery) -> UdmResponse:
+        """One query now, on the calling thread, with retries; counted like the worker's. Never raises."""
+        try:
+            response = self._fetch(http, query)
+        except Exception as error:  # noqa: BLE001 -- reported as an INTERNAL response instead
+            response = UdmResponse(query.frame, query.t_publish, None, time.monotonic(), INTERNAL,
+                                   error=describe(error))
+        self._count("ok" if response.ok else f"error:{response.status}")
+        return response
+
+    def _run(self) -> None:
+        with self.open_http() as http:
             while True:
                 with self._lock:
                     while not self._pending and not self._stopping.is_set():
@@ -256,6 +277,10 @@ class UdmClient:
         except (ValueError, InvalidObject) as error:  # JSONDecodeError is a ValueError
             return MALFORMED, (), 200, describe(error)
 
+    def count(self, key: str, amount: int = 1) -> None:
+        """Add to one of the counters ``stats()`` reports (for owners that queue queries themselves)."""
+        self._count(key, amount)
+
     def _count(self, key: str, amount: int = 1) -> None:
         with self._lock:
             self._counts[key] += amount
@@ -295,10 +320,14 @@ def describe(error: BaseException) -> str:
 
 
 class LatencyLog:
-    """Writes one ``udm_latency.csv`` row per response; give it a run folder or a file path."""
+    """Writes one ``udm_latency.csv`` row per response; give it a run folder or a file path.
+
+    ``step`` and ``t_available`` are filled in by a simulation loop: the step whose end took the answer and
+    the monotonic time it did (``available_latency_s`` = ``t_available - t_publish``).
+    """
 
     COLUMNS = ("frame", "t_publish", "t_sent", "t_received", "client_latency_s", "loop_latency_s",
-               "status", "n_objects", "error")
+               "status", "n_objects", "error", "step", "t_available", "available_latency_s")
 
     def __init__(self, path: str | Path) -> None:
         path = Path(path)
@@ -307,7 +336,7 @@ class LatencyLog:
         self._csv = csv.writer(self._file)
         self._csv.writerow(self.COLUMNS)
 
-    def write(self, response: UdmResponse) -> None:
+    def write(self, response: UdmResponse, step: int | None = None, t_available: float | None = None) -> None:
         self._csv.writerow((
             response.frame,
             seconds(response.t_publish),
@@ -318,7 +347,13 @@ class LatencyLog:
             response.status,
             len(response.objects),
             response.error,
+            "" if step is None else step,
+            seconds(t_available),
+            seconds(None if t_available is None else t_available - response.t_publish),
         ))
+
+    def flush(self) -> None:
+        self._file.flush()
 
     def write_all(self, responses: list[UdmResponse]) -> None:
         for response in responses:

@@ -98,6 +98,21 @@ class UdmObject:
             },
         }
 
+    def to_record(self) -> dict[str, Any]:
+        """Every field, exactly (floats round-trip through JSON), for recordings; see ``from_record``."""
+        record = {key: getattr(self, key) for key in _RECORD_FIELDS}
+        record["extent"] = self.extent.to_json() if self.extent else None
+        return record
+
+    @classmethod
+    def from_record(cls, record: dict[str, Any]) -> UdmObject:
+        """The object ``to_record`` wrote (a recording is trusted: it was written by ``to_record``)."""
+        values = {key: record.get(key) for key in _RECORD_FIELDS}
+        values["extent"] = Extent(**record["extent"]) if record.get("extent") else None
+        for key in ("object_class", "name", "source"):
+            values[key] = values[key] or ""
+        return cls(**values)
+
     @classmethod
     def from_feature(
         cls, feature: Any, *, default_id: str | None = None, default_layer: int | None = None,
@@ -131,6 +146,10 @@ class UdmObject:
             created_at=parse_time(properties.get("created_at"), "created_at"),
             updated_at=parse_time(properties.get("updated_at"), "updated_at"),
         )
+
+
+_RECORD_FIELDS = ("id", "layer", "type", "lat", "lon", "object_class", "name", "alt", "heading", "extent",
+                  "valid_until", "source", "created_at", "updated_at")
 
 
 def parse_layer(value: Any) -> int:

@@ -1,8 +1,9 @@
 """Fill a UDM store with a build folder's traffic signs and signals (layer 2, no expiry).
 
 Each seed source is a function ``build_dir -> objects``; ``SEED_SOURCES`` lists them in the order they run.
-A later source replaces an earlier one's object when both use the same id. To add OpenDRIVE ``<signal>``
-seeding, write ``objects_from_opendrive(build_dir)`` and append ``SeedSource("opendrive", ...)`` here.
+A later source replaces an earlier one's object when both use the same id. Sources: OSM nodes of the build's
+OSM input, ``signals.geojson``, and the OpenDRIVE ``<signal>``/``<object>`` elements of the build's map
+(``twin.udm.seed_opendrive``).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import osmium
 
 from tavf_mapkit.errors import InputError
 from twin.udm.model import InvalidObject, Layer, UdmObject
+from twin.udm.seed_opendrive import objects_from_opendrive
 from twin.udm.store import Store
 
 SEED_LAYER = int(Layer.TRANSIENT_STATIC)
@@ -115,7 +117,7 @@ def osm_direction_degrees(direction: str | None) -> float | None:
     """Compass degrees from an OSM ``direction`` (``45``, ``NE``); None for forward/backward or ranges.
 
     ``forward``/``backward`` are relative to the way the node sits on, which a node-only pass cannot see;
-    the OpenDRIVE seeding will know the road direction.
+    the OpenDRIVE seeding knows the road direction of the signals netconvert built from these nodes.
     """
     if not direction:
         return None
@@ -158,5 +160,5 @@ def objects_from_signals_geojson(build_dir: Path) -> Iterator[UdmObject]:
 SEED_SOURCES: list[SeedSource] = [
     SeedSource("osm", objects_from_osm_files),
     SeedSource(SIGNALS_GEOJSON, objects_from_signals_geojson),
-    # SeedSource("opendrive", objects_from_opendrive),  -- the OpenDRIVE <signal> reader plugs in here
+    SeedSource("opendrive", objects_from_opendrive),
 ]

@@ -1,0 +1,308 @@
+"""One clean surface per junction: the union of its connecting lanes' plan-view footprints, triangulated and
+draped on the connecting lanes' elevation.
+
+Connecting roads of a junction overlap each other by design, so meshing their lanes one by one gives
+stacked triangles and z-fighting. Instead the footprints of the flat lanes (no lane height) are united with
+shapely, small slits between neighbouring connecting roads closed, raised lanes (sidewalks with a height)
+cut out -- they keep their own mesh and curbs. The union is cut on a grid of ``cell`` metres, so that no
+triangle is larger than a cell, and each piece gets a constrained Delaunay triangulation (GEOS). Vertex
+heights are the mean height of the connecting lane meshes at that point, so overlapping connecting roads are
+averaged rather than fought over.
+
+Labels of a junction face: kind "junction", road_index / lane_id / uv (s, t) of the connecting lane found
+under the face centre (the first of several when they overlap).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+
+from tavf_mapkit.mesh.labelled import KIND_CODE, LabelledMesh
+from tavf_mapkit.mesh.planindex import PlanIndex
+
+CLOSE_SLITS = 0.02   # m: gaps narrower than twice this between connecting lanes are closed
+MIN_HOLE = 1.0       # m^2: smaller holes in the union are filled (numerical leftovers, not islands)
+
+
+@dataclass(frozen=True, eq=False)
+class JunctionSurfaces:
+    mesh: LabelledMesh                      # every junction's surface, kind "junction"
+    footprints: dict[str, object]           # junction id -> shapely (Multi)Polygon in local x, y
+
+
+def lane_footprints(sampling, include: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(lane row per polygon, shapely polygons): plan-view footprint of every lane run of a sampling
+    (only of lane rows where ``include`` is true, when given)."""
+    lane = sampling.pair_lane
+    if not len(lane):
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=object)
+    cuts = np.flatnonzero(np.diff(lane)) + 1
+    starts = np.concatenate([[0], cuts])
+    counts = np.diff(np.concatenate([starts, [len(lane)]]))
+    keep = counts >= 2
+    if include is not None:
+        keep &= include[lane[starts]]
+    starts, counts = starts[keep], counts[keep]
+    inner = sampling.points_at(sampling.t_inner)[:, :2]
+    outer = sampling.points_at(sampling.t_outer)[:, :2]
+    # ring per run: inner border forwards, outer border backwards
+    run = np.repeat(np.arange(len(starts)), 2 * counts)
+    k = np.arange(len(run)) - np.repeat(np.cumsum(2 * counts) - 2 * counts, 2 * counts)
+    n = counts[run]
+    forward = k < n
+    index = np.where(forward, starts[run] + k, starts[run] + (2 * n - 1 - k))
+    coords = np.where(forward[:, None], inner[index], outer[index])
+    rings = shapely.linearrings(coords, indices=run)
+    polygons = shapely.make_valid(shapely.polygons(rings))
+    return lane[starts], polygons
+
+
+def _polygonal(geometry):
+    """The polygonal part of a geometry (make_valid and unions may add lines and points)."""
+    parts = shapely.get_parts(geometry)
+    parts = parts[np.isin(shapely.get_type_id(parts), (3, 6))]
+    return shapely.union_all(parts) if len(parts) else shapely.Polygon()
+
+
+def _fill_small_holes(geometry, min_area: float):
+    out = []
+    for polygon in shapely.get_parts(geometry):
+        holes = [ring for ring in polygon.interiors if shapely.Polygon(ring).area >= min_area]
+        out.append(shapely.Polygon(polygon.exterior, holes))
+    return shapely.union_all(out) if out else shapely.Polygon()
+
+
+def junction_footprints(odr, sampling, raised_rows: np.ndarray) -> dict[str, object]:
+    """junction id -> united footprint of its flat connecting lanes, raised lanes cut out."""
+    arrays = odr.arrays
+    junction_of_road = np.array([road.junction if road.in_junction else "" for road in odr.roads], dtype=object)
+    rows, polygons = lane_footprints(sampling, junction_of_road[arrays.section_road[arrays.lane_section]] != "")
+    if not len(rows):
+        return {}
+    junction = junction_of_road[arrays.section_road[arrays.lane_section[rows]]]
+    raised = raised_rows[rows]
+    out = {}
+    for junction_id in sorted(set(junction) - {""}):
+        mine = junction == junction_id
+        flat = _polygonal(shapely.union_all(polygons[mine & ~raised]))
+        if flat.is_empty:
+            continue
+        flat = flat.buffer(CLOSE_SLITS, join_style="mitre").buffer(-CLOSE_SLITS, join_style="mitre")
+        if np.any(mine & raised):
+            flat = flat.difference(_polygonal(shapely.union_all(polygons[mine & raised])))
+        flat = _fill_small_holes(_polygonal(flat), MIN_HOLE)
+        if not flat.is_empty:
+            out[junction_id] = flat
+    return out
+
+
+def triangulate_on_grid(footprint, cell: float) -> np.ndarray:
+    """(M, 3, 2) counter-clockwise triangles covering the footprint, none larger than a grid cell."""
+    west, south, east, north = footprint.bounds
+    x0, y0 = np.floor(west / cell) * cell, np.floor(south / cell) * cell
+    nx, ny = max(1, int(np.ceil((east - x0) / cell))), max(1, int(np.ceil((north - y0) / cell)))
+    gx, gy = np.meshgrid(x0 + cell * np.arange(nx), y0 + cell * np.arange(ny))
+    boxes = shapely.box(gx.ravel(), gy.ravel(), gx.ravel() + cell, gy.ravel() + cell)
+    pieces = shapely.intersection(footprint, boxes)
+    pieces = shapely.get_parts(pieces[~shapely.is_empty(pieces)])
+    pieces = pieces[shapely.get_type_id(pieces) == 3]
+    if not len(pieces):
+        return np.zeros((0, 3, 2))
+    triangles = shapely.get_parts(shapely.constrained_delaunay_triangles(pieces))
+    triangles = triangles[shapely.get_type_id(triangles) == 3]
+    coords = shapely.get_coordinates(triangles).reshape(-1, 4, 2)[:, :3]
+    a, b, c = coords[:, 0], coords[:, 1], coords[:, 2]
+    signed = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+    coords[signed < 0] = coords[signed < 0][:, [0, 2, 1]]
+    return coords[np.abs(signed) > 0]
+
+
+class Drape:
+    """Heights and labels of a set of (connecting lane) triangles at plan-view points; built once, asked often."""
+
+    def __init__(self, lanes: LabelledMesh, reach: float = 1e-3):
+        self.lanes = lanes
+        self.triangles = lanes.vertices[lanes.faces]  # (F, 3, 3)
+        self.index = PlanIndex(self.triangles[:, :, :2], reach) if len(lanes.faces) else None
+
+    def __call__(self, points: np.ndarray, distance: float = 1e-3):
+        """Height (mean over the triangles within ``distance``), first such face, its (s, t), and the spread
+        (max - min) of their heights. Where connecting roads disagree in height (CARLA's Town07 has junctions
+        with 0.6 m between overlapping connecting lanes) no single surface can be within eps of all of them;
+        the spread says by how much the data contradicts itself there. A point near no triangle takes the
+        triangle with the nearest centre."""
+        lanes, tri = self.lanes, self.triangles
+        points = np.asarray(points, dtype=float)
+        if self.index is None:
+            zero = np.zeros(len(points))
+            return zero, np.full(len(points), -1), np.zeros((len(points), 2)), zero
+        if distance > self.index.pad:
+            self.index = PlanIndex(self.triangles[:, :, :2], distance)
+        point_index, face = self.index.covering(points, distance)
+        missing = np.setdiff1d(np.arange(len(points)), point_index)
+        if len(missing):
+            nearest = _nearest_triangle(tri[:, :, :2], points[missing])
+            point_index = np.concatenate([point_index, missing])
+            face = np.concatenate([face, nearest])
+        weights = _barycentric(points[point_index], tri[face, :, :2])
+        z = np.einsum("ij,ij->i", weights, tri[face, :, 2])
+        count = np.bincount(point_index, minlength=len(points))
+        height = np.bincount(point_index, weights=z, minlength=len(points)) / np.maximum(count, 1)
+        high = np.full(len(points), -np.inf)
+        low = np.full(len(points), np.inf)
+        np.maximum.at(high, point_index, z)
+        np.minimum.at(low, point_index, z)
+        spread = np.where(count > 0, high - low, 0.0)
+        # the first hit per point carries the labels
+        order = np.lexsort((face, point_index))
+        point_index, face, weights = point_index[order], face[order], weights[order]
+        first = np.ones(len(point_index), dtype=bool)
+        first[1:] = point_index[1:] != point_index[:-1]
+        label_face = np.full(len(points), -1)
+        label_face[point_index[first]] = face[first]
+        uv = np.zeros((len(points), 2))
+        if lanes.uv is not None:
+            uv_tri = lanes.uv[lanes.faces[face[first]]]
+            uv[point_index[first]] = np.einsum("ij,ijk->ik", weights[first], uv_tri)
+        return height, label_face, uv, spread
+
+
+def _nearest_triangle(plan: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Index of the triangle whose centre is nearest to each point (points off the lanes are rare and
+    close to them, so a coarse candidate search with a brute-force fallback is enough)."""
+    centres = plan.mean(axis=1)
+    best = np.full(len(points), -1)
+    point, face = PlanIndex(plan, 10.0).candidates(points)
+    if len(point):
+        distance = np.hypot(*(centres[face] - points[point]).T)
+        order = np.lexsort((distance, point))
+        first = np.ones(len(order), dtype=bool)
+        first[1:] = point[order][1:] != point[order][:-1]
+        best[point[order][first]] = face[order][first]
+    for i in np.flatnonzero(best < 0):
+        best[i] = int(np.argmin(np.hypot(*(centres - points[i]).T)))
+    return best
+
+
+def drape(points: np.ndarray, lanes: LabelledMesh, distance: float = 1e-3):
+    """``Drape(lanes)(points, distance)`` for a single question."""
+    return Drape(lanes, distance)(points, distance)
+
+
+def _barycentric(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """Barycentric weights of plan points in plan triangles, clamped to the triangle (points on or near it)."""
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    v0, v1, v2 = b - a, c - a, p - a
+    d00 = np.einsum("ij,ij->i", v0, v0)
+    d01 = np.einsum("ij,ij->i", v0, v1)
+    d11 = np.einsum("ij,ij->i", v1, v1)
+    d20 = np.einsum("ij,ij->i", v2, v0)
+    d21 = np.einsum("ij,ij->i", v2, v1)
+    denominator = d00 * d11 - d01 * d01
+    safe = np.where(np.abs(denominator) > 1e-18, denominator, 1.0)
+    v = np.where(np.abs(denominator) > 1e-18, (d11 * d20 - d01 * d21) / safe, 1 / 3)
+    w = np.where(np.abs(denominator) > 1e-18, (d00 * d21 - d01 * d20) / safe, 1 / 3)
+    weights = np.clip(np.column_stack([1.0 - v - w, v, w]), 0.0, None)
+    return weights / weights.sum(axis=1, keepdims=True)
+
+
+def _refine(plan: np.ndarray, faces: np.ndarray, height: np.ndarray, lanes: LabelledMesh, eps: float,
+            min_edge: float, levels: int = 6):
+    """Split junction triangles until their plane is within eps of the draped height at every edge midpoint
+    and centre (or edges reach ``min_edge``). Edges are split at their midpoint for both neighbours, and each
+    triangle is cut into 2, 3 or 4 by the pattern of its split edges, so the mesh stays conforming."""
+    # the connecting lanes' own vertices are check points too: they carry every feature of the height field
+    # at the resolution the lanes were meshed with (cross slopes of neighbouring connecting roads, crests)
+    lane_drape = Drape(lanes)
+    targets = np.unique(np.round(lanes.vertices[:, :2], 6), axis=0)
+    target_z = lane_drape(targets)[0]
+    for _ in range(levels):
+        current = LabelledMesh(np.column_stack([plan, height]), faces, np.zeros(len(faces), dtype=np.int32),
+                               np.zeros(len(faces), dtype=np.int32), np.zeros(len(faces), dtype=np.int16))
+        mesh_z, under, _, _ = Drape(current)(targets)
+        target_miss = under[np.abs(mesh_z - target_z) > eps]
+        edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+        unique, edge_of = np.unique(edges, axis=0, return_inverse=True)
+        edge_of = edge_of.reshape(-1, 3)  # face edge k runs from corner k to corner k+1
+        mid = 0.5 * (plan[unique[:, 0]] + plan[unique[:, 1]])
+        centre = plan[faces].mean(axis=1)
+        z = lane_drape(np.concatenate([mid, centre]))[0]
+        long_enough = np.linalg.norm(plan[unique[:, 0]] - plan[unique[:, 1]], axis=1) > min_edge
+        split = long_enough & (np.abs(z[:len(mid)] - 0.5 * (height[unique[:, 0]] + height[unique[:, 1]])) > eps)
+        # a centre that misses splits the triangle's longest edge
+        centre_miss = np.abs(z[len(mid):] - height[faces].mean(axis=1)) > eps
+        centre_miss[target_miss] = True
+        corner = plan[faces]
+        lengths = np.linalg.norm(corner - np.roll(corner, -1, axis=1), axis=2)
+        longest = edge_of[np.arange(len(faces)), np.argmax(lengths, axis=1)]
+        split[longest[centre_miss & long_enough[longest]]] = True
+        if not split.any():
+            break
+        new_index = np.full(len(unique), -1)
+        new_index[split] = len(plan) + np.arange(np.count_nonzero(split))
+        plan = np.concatenate([plan, mid[split]])
+        height = np.concatenate([height, z[:len(mid)][split]])
+        faces = _split_faces(faces, new_index[edge_of])
+    return plan, faces, height
+
+
+def _split_faces(faces: np.ndarray, mids: np.ndarray) -> np.ndarray:
+    """Cut each face by the midpoints of its split edges (mids[:, k] >= 0: edge k -> k+1 is split)."""
+    marked = mids >= 0
+    count = marked.sum(axis=1)
+    out = [faces[count == 0]]
+    # rotate every face so that its pattern is canonical: one split -> edge 0; two -> edges 0 and 1
+    roll = np.zeros(len(faces), dtype=np.int64)
+    one = count == 1
+    roll[one] = np.argmax(marked[one], axis=1)
+    two = count == 2
+    roll[two] = (np.argmin(marked[two], axis=1) + 1) % 3  # the unsplit edge becomes edge 2
+    k = (np.arange(3)[None, :] + roll[:, None]) % 3
+    v = np.take_along_axis(faces, k, axis=1)
+    m = np.take_along_axis(mids, k, axis=1)
+    v0, v1, v2, m0, m1, m2 = v[:, 0], v[:, 1], v[:, 2], m[:, 0], m[:, 1], m[:, 2]
+    out.append(np.column_stack([v0, m0, v2])[one])
+    out.append(np.column_stack([m0, v1, v2])[one])
+    out.append(np.column_stack([m0, v1, m1])[two])
+    out.append(np.column_stack([v0, m0, m1])[two])
+    out.append(np.column_stack([v0, m1, v2])[two])
+    three = count == 3
+    for triangle in ((v0, m0, m2), (m0, v1, m1), (m2, m1, v2), (m0, m1, m2)):
+        out.append(np.column_stack(triangle)[three])
+    return np.concatenate(out)
+
+
+def junction_surfaces(odr, sampling, lanes: LabelledMesh, raised_rows: np.ndarray, cell: float = 5.0,
+                      eps: float = 0.05, min_edge: float = 0.25) -> JunctionSurfaces:
+    """Surfaces of every junction. ``lanes`` are the connecting lanes' flat faces (for heights and labels)."""
+    footprints = junction_footprints(odr, sampling, raised_rows)
+    plans, face_sets, offset = [], [], 0
+    for footprint in footprints.values():
+        triangles = triangulate_on_grid(footprint, cell)
+        if not len(triangles):
+            continue
+        flat = triangles.reshape(-1, 2)
+        # pieces of the grid were triangulated one by one: shared corners are equal to rounding, weld them
+        keys = np.round(flat / 1e-7).astype(np.int64)
+        _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+        plans.append(flat[first])
+        face_sets.append(inverse.reshape(-1, 3).astype(np.int64) + offset)
+        offset += len(first)
+    if not plans or not len(lanes.faces):
+        return JunctionSurfaces(LabelledMesh.empty(), footprints)
+    plan = np.concatenate(plans)
+    faces = np.concatenate(face_sets)
+    lane_drape = Drape(lanes)
+    height = lane_drape(plan)[0]
+    plan, faces, height = _refine(plan, faces, height, lanes, eps, min_edge)
+    # one query for vertices (s/t) and face centres (labels)
+    _, label_face, uv, _ = lane_drape(np.concatenate([plan, plan[faces].mean(axis=1)]))
+    n = len(plan)
+    uv, label_face = uv[:n], label_face[n:]
+    return JunctionSurfaces(LabelledMesh(
+        np.column_stack([plan, height]), faces,
+        lanes.road_index[label_face].astype(np.int32), lanes.lane_id[label_face].astype(np.int32),
+        np.full(len(faces), KIND_CODE["junction"], dtype=np.int16), uv), footprints)

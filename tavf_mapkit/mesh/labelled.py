@@ -1,0 +1,90 @@
+"""LabelledMesh: the one value object every mesh producer returns and every consumer (export, preview,
+collision world, twin) reads. Triangles keep which road / lane they belong to, so tools can pick a lane by face.
+
+Coordinates are OpenDRIVE local metres (x east, y north, z up) in float64; exporters recentre and convert.
+"""
+
+from __future__ import annotations
+
+import io
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+# Lane types and other surfaces get small integer codes so labels stay numpy arrays.
+SURFACE_KINDS = ("driving", "sidewalk", "shoulder", "border", "biking", "parking", "median", "restricted",
+                 "curb", "junction", "roadmark", "object", "signal", "building", "other")
+KIND_CODE = {name: code for code, name in enumerate(SURFACE_KINDS)}
+
+
+@dataclass(frozen=True, eq=False)
+class LabelledMesh:
+    vertices: np.ndarray     # (N, 3) float64, OpenDRIVE local coordinates
+    faces: np.ndarray        # (M, 3) int64, counter-clockwise seen from outside (up for road surfaces)
+    road_index: np.ndarray   # (M,) int32: row in OpenDriveMap.roads, -1 for none (buildings)
+    lane_id: np.ndarray      # (M,) int32: OpenDRIVE lane id, 0 for none
+    kind: np.ndarray         # (M,) int16: KIND_CODE of the lane type / surface kind
+    uv: np.ndarray | None = None  # (N, 2) float64 (s, t) per vertex where that means something
+
+    def __post_init__(self):
+        m = len(self.faces)
+        for name in ("road_index", "lane_id", "kind"):
+            if len(getattr(self, name)) != m:
+                raise ValueError(f"LabelledMesh.{name} has {len(getattr(self, name))} entries for {m} faces")
+
+    @classmethod
+    def empty(cls) -> LabelledMesh:
+        return cls(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), np.zeros(0, dtype=np.int32),
+                   np.zeros(0, dtype=np.int32), np.zeros(0, dtype=np.int16), np.zeros((0, 2)))
+
+    @classmethod
+    def concatenate(cls, meshes: list[LabelledMesh]) -> LabelledMesh:
+        meshes = [m for m in meshes if len(m.faces)]
+        if not meshes:
+            return cls.empty()
+        offsets = np.cumsum([0] + [len(m.vertices) for m in meshes[:-1]])
+        with_uv = all(m.uv is not None for m in meshes)
+        return cls(
+            np.concatenate([m.vertices for m in meshes]),
+            np.concatenate([m.faces + o for m, o in zip(meshes, offsets)]),
+            np.concatenate([m.road_index for m in meshes]),
+            np.concatenate([m.lane_id for m in meshes]),
+            np.concatenate([m.kind for m in meshes]),
+            np.concatenate([m.uv for m in meshes]) if with_uv else None,
+        )
+
+    def select(self, face_mask: np.ndarray) -> LabelledMesh:
+        """The faces where ``face_mask`` is true, with unused vertices dropped."""
+        faces = self.faces[face_mask]
+        used, inverse = np.unique(faces, return_inverse=True)
+        return LabelledMesh(self.vertices[used], inverse.reshape(-1, 3).astype(np.int64),
+                            self.road_index[face_mask], self.lane_id[face_mask], self.kind[face_mask],
+                            None if self.uv is None else self.uv[used])
+
+    def to_trimesh(self):
+        import trimesh
+
+        return trimesh.Trimesh(self.vertices, self.faces, process=False)
+
+    _ARRAYS = ("vertices", "faces", "road_index", "lane_id", "kind", "uv")
+
+    def to_npz_bytes(self) -> bytes:
+        """The arrays as an ``.npz`` (np.load reads it); fixed zip timestamps make it byte-reproducible."""
+        buffer = io.BytesIO()
+        with zipfile.ZipFile(buffer, "w", zipfile.ZIP_STORED) as archive:
+            for name in self._ARRAYS:
+                value = getattr(self, name)
+                if value is None:
+                    continue
+                member = io.BytesIO()
+                np.lib.format.write_array(member, np.ascontiguousarray(value), allow_pickle=False)
+                archive.writestr(zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0)),
+                                 member.getvalue())
+        return buffer.getvalue()
+
+    @classmethod
+    def load_npz(cls, path: str | Path) -> LabelledMesh:
+        with np.load(path, allow_pickle=False) as data:
+            return cls(*(data[name] if name in data else None for name in cls._ARRAYS))

@@ -1,0 +1,262 @@
+"""Buildings of an OSM input as solids: footprints (closed ways and multipolygon relations tagged ``building``)
+extruded to their height.
+
+Height: ``height`` (metres, or feet with ' / ft), else (``building:levels`` + ``roof:levels``) x LEVEL_HEIGHT,
+else DEFAULT_HEIGHT. Bottom: ``min_height`` or ``building:min_level`` x LEVEL_HEIGHT above the ground, else
+FOUNDATION below it. Roofs and bridge buildings (``building=roof|bridge|carport``) without a bottom start at
+OVERHEAD_CLEARANCE: they stand over streets and must not block them. Underground buildings (``location=
+underground`` or a negative ``layer``) and ``building=no`` are left out. The ground is the lowest road-surface
+vertex near the footprint (the map has no terrain model).
+
+OSM extracts are often not sorted by id (osmium's extract keeps the input's order, and editors write negative
+ids), so footprints are assembled here from two plain passes instead of osmium's sorted-input area assembler.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import manifold3d
+import numpy as np
+
+from tavf_mapkit.mesh.solid_kit import Solid, SolidError, to_solid
+
+LEVEL_HEIGHT = 3.0        # m per storey
+DEFAULT_HEIGHT = 10.0     # m when neither height nor levels are tagged
+FOUNDATION = 0.5          # m below the ground, so no gap opens on sloped ground
+OVERHEAD = frozenset({"roof", "bridge", "carport"})
+OVERHEAD_CLEARANCE = 4.0  # m: bottom of an overhead building without min_height
+OVERHEAD_THICKNESS = 1.0  # m: its thickness when no height above the clearance is tagged
+MIN_AREA = 0.5            # m2: smaller footprints are mapping noise
+MAX_HEIGHT = 1000.0       # m: taller tags are typos (the tallest building is 828 m)
+PASSAGE_MARGIN = 0.5      # m of clearance beside a drivable lane that passes through a building
+_NUMBER = re.compile(r"^\s*([-+]?\d+(?:[.,]\d+)?)\s*(m|ft|'|)\s*$")
+
+
+@dataclass(frozen=True)
+class Footprint:
+    source: str                          # "osm way 4711" / "osm relation 12"
+    tags: dict
+    rings: tuple[tuple[np.ndarray, str], ...]  # ((lon, lat) (n, 2) array, "outer" | "inner")
+
+
+def parse_length(text: str | None) -> float | None:
+    """Metres from an OSM length tag ("12", "12.5 m", "40 ft", "40'"), None when unreadable."""
+    if text is None:
+        return None
+    match = _NUMBER.match(text)
+    if not match:
+        return None
+    value = float(match.group(1).replace(",", "."))
+    return value * 0.3048 if match.group(2) in ("ft", "'") else value
+
+
+def _number(text: str | None) -> float | None:
+    try:
+        return float(text) if text is not None else None
+    except ValueError:
+        return None
+
+
+def vertical_extent(tags: dict) -> tuple[float, float] | None:
+    """(bottom, top) above the ground in metres, or None when the building gets no solid."""
+    kind = tags.get("building", "yes")
+    layer = _number(tags.get("layer"))
+    if kind == "no" or tags.get("location") == "underground" or (layer is not None and layer < 0):
+        return None
+    top = parse_length(tags.get("height"))
+    if top is None:
+        levels = _number(tags.get("building:levels"))
+        if levels is not None and levels >= 0:
+            top = (levels + max(0.0, _number(tags.get("roof:levels")) or 0.0)) * LEVEL_HEIGHT
+    bottom = parse_length(tags.get("min_height"))
+    if bottom is None:
+        min_level = _number(tags.get("building:min_level"))
+        bottom = min_level * LEVEL_HEIGHT if min_level is not None and min_level > 0 else None
+    if bottom is None and kind in OVERHEAD:
+        bottom = OVERHEAD_CLEARANCE
+        if top is None or top <= bottom:
+            top = bottom + OVERHEAD_THICKNESS
+    if top is None or top <= 0:
+        top = DEFAULT_HEIGHT
+    bottom = -FOUNDATION if bottom is None or bottom <= 0 else min(bottom, MAX_HEIGHT)
+    top = min(top, MAX_HEIGHT)
+    return (bottom, top) if top > bottom else None
+
+
+def read_footprints(osm_path: Path) -> list[Footprint]:
+    """Building footprints of an OSM file (lon/lat rings), in file order."""
+    import osmium
+
+    from tavf_mapkit.osm.files import osmium_errors
+
+    path = str(osm_path)
+    relations, wanted = [], set()
+    with osmium_errors(osm_path):
+        for relation in osmium.FileProcessor(path, osmium.osm.RELATION):
+            tags = dict(relation.tags)
+            if tags.get("type") == "multipolygon" and "building" in tags:
+                members = [(m.ref, m.role or "outer") for m in relation.members if m.type == "w"]
+                relations.append((relation.id, tags, members))
+                wanted.update(ref for ref, _ in members)
+        ways = {}  # id -> (tags or None, node ids)
+        for way in osmium.FileProcessor(path, osmium.osm.WAY):
+            is_building = "building" in way.tags
+            if is_building or way.id in wanted:
+                ways[way.id] = (dict(way.tags) if is_building else None, [node.ref for node in way.nodes])
+        needed = {ref for _, refs in ways.values() for ref in refs}
+        ids, lonlat = [], []
+        if needed:
+            # node ids may be negative or unsorted (editors, extracts): a plain lookup, not osmium's
+            # location index or IdFilter, which both take unsigned ids
+            for node in osmium.FileProcessor(path, osmium.osm.NODE):
+                if node.id in needed and node.location.valid():
+                    ids.append(node.id)
+                    lonlat.append((node.location.lon, node.location.lat))
+    ids = np.asarray(ids, dtype=np.int64)
+    order = np.argsort(ids)
+    ids, lonlat = ids[order], np.asarray(lonlat, dtype=float).reshape(-1, 2)[order]
+
+    def coordinates(refs):
+        refs = np.asarray(refs, dtype=np.int64)
+        at = np.clip(np.searchsorted(ids, refs), 0, max(len(ids) - 1, 0))
+        if not len(ids) or not np.array_equal(ids[at], refs):
+            return None  # a node outside the extract: the ring is incomplete
+        return lonlat[at]
+
+    footprints, member_lines = [], {}
+    for way_id, (tags, refs) in ways.items():
+        coords = coordinates(refs)
+        if coords is None:
+            continue
+        if way_id in wanted:
+            member_lines[way_id] = coords
+        if tags is not None and len(refs) >= 4 and refs[0] == refs[-1]:
+            footprints.append(Footprint(f"osm way {way_id}", tags, ((coords, "outer"),)))
+    for relation_id, tags, members in relations:
+        rings = tuple((member_lines[ref], "inner" if role == "inner" else "outer")
+                      for ref, role in members if ref in member_lines)
+        if rings:
+            footprints.append(Footprint(f"osm relation {relation_id}", tags, rings))
+    return footprints
+
+
+def footprint_polygons(footprint: Footprint, to_local):
+    """Valid shapely polygons of a footprint in local coordinates (member ways joined into rings)."""
+    import shapely
+    from shapely.ops import linemerge
+
+    lines = {"outer": [], "inner": []}
+    for coords, role in footprint.rings:
+        x, y = to_local(coords[:, 0], coords[:, 1])
+        lines[role].append(shapely.LineString(np.column_stack([x, y])))
+
+    def area(role):
+        if not lines[role]:
+            return shapely.Polygon()
+        merged = linemerge(lines[role]) if len(lines[role]) > 1 else lines[role][0]
+        parts = shapely.get_parts(shapely.polygonize(shapely.get_parts(merged)))
+        return shapely.union_all([shapely.make_valid(part) for part in parts])
+
+    shape = shapely.make_valid(area("outer").difference(area("inner")))
+    return [p for p in shapely.get_parts(shape) if p.geom_type == "Polygon" and p.area >= MIN_AREA]
+
+
+def building_solids(odr, surface, osm_path: Path | None) -> tuple[list[Solid], list[str]]:
+    """Extruded OSM buildings; empty when there is no OSM input or no georeference to place it."""
+    if osm_path is None:
+        return [], []
+    if odr.georeference is None:
+        return [], [f"{osm_path}: no geoReference in the OpenDRIVE, buildings cannot be placed"]
+    ground = _ground(surface)
+    parts, skipped = [], []
+    for footprint in read_footprints(Path(osm_path)):
+        extent = vertical_extent(footprint.tags)
+        if extent is None:
+            skipped.append(f"{footprint.source}: underground or building=no")
+            continue
+        try:
+            polygons = footprint_polygons(footprint, odr.georeference.wgs84_to_local)
+        except (ValueError, TypeError) as error:  # shapely refuses broken rings
+            skipped.append(f"{footprint.source}: footprint unusable ({error})")
+            continue
+        if not polygons:
+            skipped.append(f"{footprint.source}: footprint encloses no area")
+        for k, polygon in enumerate(polygons):
+            parts.append((footprint.source if len(polygons) == 1 else f"{footprint.source} part {k}", polygon,
+                          extent))
+    solids = []
+    for where, polygon, extent in _passages(parts, surface):
+        try:
+            solids.append(_extrude(polygon, extent, ground, where))
+        except SolidError as error:
+            skipped.append(f"{where}: {error}")
+    return solids, skipped
+
+
+def _passages(parts, surface):
+    """Where a building stands on a drivable lane (a passage through it, mapped on the street as
+    ``tunnel=building_passage``), the part over the lane starts at OVERHEAD_CLEARANCE: the road exists in the
+    OpenDRIVE, so the building must let it through."""
+    import shapely
+
+    from tavf_mapkit.mesh.kinds import DRIVABLE_KINDS
+    from tavf_mapkit.mesh.labelled import KIND_CODE
+
+    if surface is None or not parts or not len(surface.faces):
+        return parts
+    drivable = np.isin(surface.kind, [KIND_CODE[k] for k in DRIVABLE_KINDS])
+    triangles = shapely.polygons(surface.vertices[surface.faces[drivable]][:, :, :2])
+    triangles = triangles[shapely.area(triangles) > 1e-9]
+    tree = shapely.STRtree([polygon for _, polygon, _ in parts])
+    part_index, triangle_index = tree.query(triangles, predicate="intersects")[::-1]
+    out = []
+    for i, (where, polygon, (bottom, top)) in enumerate(parts):
+        mine = triangle_index[part_index == i]
+        if not len(mine):
+            out.append((where, polygon, (bottom, top)))
+            continue
+        lanes = shapely.union_all(triangles[mine]).buffer(PASSAGE_MARGIN)
+        ground_parts = shapely.get_parts(shapely.make_valid(polygon.difference(lanes)))
+        over_parts = shapely.get_parts(shapely.make_valid(polygon.intersection(lanes)))
+        pieces = [(p, (bottom, top), "") for p in ground_parts]
+        over_bottom = bottom if bottom > 0 else OVERHEAD_CLEARANCE
+        if top > over_bottom:
+            pieces += [(p, (over_bottom, top), " over the road") for p in over_parts]
+        k = 0
+        for piece, extent, note in pieces:
+            if piece.geom_type == "Polygon" and piece.area >= MIN_AREA:
+                out.append((f"{where} passage {k}{note}", piece, extent))
+                k += 1
+    return out
+
+
+def _ground(surface):
+    """z of the ground near (x, y): lowest of the nearest road-surface vertices (0 without a surface)."""
+    if surface is None or not len(surface.vertices):
+        return lambda x, y: 0.0
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(surface.vertices[:, :2])
+    z = surface.vertices[:, 2]
+
+    def at(x, y):
+        _, index = tree.query([x, y], k=min(8, len(z)))
+        return float(np.min(z[np.atleast_1d(index)]))
+
+    return at
+
+
+def _extrude(polygon, extent, ground, where) -> Solid:
+    bottom, top = extent
+    centre = polygon.representative_point()
+    anchor = np.array([centre.x, centre.y, ground(centre.x, centre.y)])
+    contours = [np.asarray(polygon.exterior.coords)[:-1, :2] - anchor[:2]]
+    contours += [np.asarray(ring.coords)[:-1, :2] - anchor[:2] for ring in polygon.interiors]
+    section = manifold3d.CrossSection(contours, manifold3d.FillRule.EvenOdd)
+    if section.is_empty():
+        raise SolidError("footprint encloses no area")
+    solid = manifold3d.Manifold.extrude(section, top - bottom).translate([0.0, 0.0, bottom])
+    return to_solid(solid, "building", where, anchor)

@@ -1,0 +1,66 @@
+"""Stage "mesh": road surface, junction surfaces and road marks (plus the scene solids, when that module is
+installed) as tiled glTF (or OBJ) in mesh/, with mesh/mesh.json and a top-view preview that is also copied
+to report/mesh_preview.png. See docs/mesh.md."""
+
+from __future__ import annotations
+
+import shutil
+
+from tavf_mapkit.errors import InputError, StageError
+from tavf_mapkit.pipeline.context import BuildContext
+from tavf_mapkit.pipeline.stages import Stage, StageOutput, register_stage
+
+
+@register_stage("mesh")
+class MeshStage(Stage):
+    inputs = ("xodr",)
+    optional_inputs = ("source",)
+    version = "2"  # 2: also writes mesh/surface.npz
+    description = "road surface, junctions and road marks (and scene solids) as tiled glTF + preview"
+
+    def options(self, context: BuildContext) -> dict:
+        section = context.section("mesh")
+        try:
+            eps = float(section.get("eps", 0.05))
+            tile = float(section.get("tile", 100.0))
+        except (TypeError, ValueError):
+            raise InputError("[mesh] eps and tile must be numbers of metres") from None
+        if not (eps > 0 and tile > 0):
+            raise InputError("[mesh] eps and tile must be positive")
+        fmt = str(section.get("format", "glb")).lower()
+        if fmt not in ("glb", "obj"):
+            raise InputError(f"[mesh] format must be glb or obj, not {fmt!r}")
+        return {"eps": eps, "tile": tile, "format": fmt, "solids": bool(section.get("solids", True)),
+                "solids_module": self._solids_available()}
+
+    @staticmethod
+    def _solids_available() -> bool:
+        from tavf_mapkit.mesh.folder import load_scene_solids
+
+        return load_scene_solids() is not None
+
+    def run(self, context: BuildContext) -> StageOutput:
+        from tavf_mapkit.mesh.folder import write_mesh_folder
+        from tavf_mapkit.opendrive import load_opendrive
+
+        options = self.options(context)
+        try:
+            odr = load_opendrive(context.artifacts["xodr"])
+        except InputError as error:
+            raise StageError(f"netconvert's OpenDRIVE is unreadable: {error}") from None
+        source = context.artifacts.get("source")
+        osm_path = source if source is not None and str(source).lower().endswith(".osm") else None
+        folder = context.output_path("mesh/mesh.json").parent
+        summary = write_mesh_folder(odr, folder, options["eps"], options["format"], options["tile"],
+                                    osm_path=osm_path, solids=options["solids"])
+        shutil.copyfile(folder / "preview.png", context.output_path("report/mesh_preview.png"))
+        triangles = summary["triangles"]
+        context.note(f"mesh: {triangles['lanes'] + triangles['junctions']} surface + {triangles['marks']} mark"
+                     f" + {triangles['solids']} solid triangles in {len(summary['tiles'])} tiles")
+        facts = {
+            "eps": options["eps"], "format": options["format"], "tiles": len(summary["tiles"]),
+            "triangles": triangles, "junctions": summary["junctions"],
+            "max_deviation_m": summary["deviation"]["max_m"],
+            "origin": summary["origin"], "solids": summary["solids"],
+        }
+        return StageOutput(files={"mesh": "mesh", "mesh_preview": "report/mesh_preview.png"}, facts=facts)

@@ -1,0 +1,264 @@
+"""Geometry rules: reference-line contiguity, lengths, paramPoly3 arc length, lane widths and borders, profile
+jumps, zero lengths. Vectorised over the whole map (NetworkArrays), one pass per rule."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+
+from tavf_mapkit.opendrive.geometry import GeometryKind
+from tavf_mapkit.validate.context import angle_difference
+from tavf_mapkit.validate.finding import ERROR, WARNING, Hit
+from tavf_mapkit.validate.registry import rule
+
+_GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(16)
+
+
+def _flat_geometries(odr):
+    """(road, geometry) pairs in NetworkArrays' geometry-table order."""
+    return [(road, geometry) for road in odr.roads for geometry in road.reference_line.geometries]
+
+
+def _joints(ctx):
+    """For every pair of consecutive geometries of a road: (index of the first, end point/heading of the first)."""
+    cache = ctx.notes.setdefault("_geometry_joints", {})
+    if "value" not in cache:
+        table = ctx.odr.arrays.geometries
+        first = np.flatnonzero(table.group[:-1] == table.group[1:]) if len(table) > 1 else np.zeros(0, dtype=int)
+        x, y, heading, _ = table.evaluate(first, table.length[first])
+        cache["value"] = (table, first, x, y, heading)
+    return cache["value"]
+
+
+@rule("geometry.gap", ERROR, tolerance=0.001, unit="m",
+      summary="Consecutive planView geometries of a road join: the end of one is the start of the next.",
+      why="A gap is a hole in the road surface and a jump for anything driving along the reference line.")
+def gap(ctx, rule):
+    table, first, x, y, _ = _joints(ctx)
+    distance = np.hypot(table.x[first + 1] - x, table.y[first + 1] - y)
+    geometries = _flat_geometries(ctx.odr)
+    for k in np.flatnonzero(distance > rule.tolerance):
+        road, geometry = geometries[first[k] + 1]
+        yield Hit(f"geometry at s={geometry.s:g} starts {distance[k]:.4g} m from where the previous one ends",
+                  road=road.id, s=geometry.s, line=geometry.line)
+
+
+@rule("geometry.kink", WARNING, tolerance=0.1, unit="deg",
+      summary="Consecutive planView geometries of a road have the same heading where they join.",
+      why="A kink is a heading jump: lane borders fan out or overlap at the joint and vehicles steer abruptly.")
+def kink(ctx, rule):
+    table, first, _, _, heading = _joints(ctx)
+    difference = np.degrees(np.abs(angle_difference(table.hdg[first + 1], heading)))
+    geometries = _flat_geometries(ctx.odr)
+    for k in np.flatnonzero(difference > rule.tolerance):
+        road, geometry = geometries[first[k] + 1]
+        yield Hit(f"heading changes by {difference[k]:.3g} deg where the geometry at s={geometry.s:g} begins",
+                  road=road.id, s=geometry.s, line=geometry.line)
+
+
+@rule("geometry.length", ERROR, tolerance=0.001, unit="m",
+      summary="Geometry s values follow from the lengths (first at s=0, each at the previous s + length) and the "
+              "geometries add up to the road's @length.",
+      why="Readers locate a geometry by s; inconsistent s or lengths shift or cut the road and its lanes.")
+def lengths(ctx, rule):
+    tolerance = rule.tolerance
+    for road in ctx.odr.roads:
+        geometries = road.reference_line.geometries
+        if not geometries:
+            continue
+        if abs(geometries[0].s) > tolerance:
+            yield Hit(f"first geometry starts at s={geometries[0].s:g}, not 0", road=road.id, s=geometries[0].s,
+                      line=geometries[0].line)
+        for before, after in itertools.pairwise(geometries):
+            expected = before.s + before.length
+            if abs(after.s - expected) > tolerance:
+                yield Hit(f"geometry at s={after.s:g} should start at s={expected:.6g} (previous s + length)",
+                          road=road.id, s=after.s, line=after.line)
+        end = geometries[-1].s + geometries[-1].length
+        if abs(end - road.length) > tolerance:
+            yield Hit(f"geometries end at s={end:.6g} but the road's @length is {road.length:.6g} "
+                      f"({end - road.length:+.4g} m)", road=road.id, line=road.line)
+
+
+def param_poly3_arc_lengths(table, rows: np.ndarray) -> np.ndarray:
+    """True arc length of paramPoly3 rows of a GeometryTable (composite 16-point Gauss-Legendre, 16 panels).
+
+    Computed here rather than taken from the evaluator: the validator checks the file, not our reading of it.
+    """
+    params = table.params[rows]
+    p_end = np.where(params[:, 8] > 0.5, 1.0, table.length[rows])
+    panels = 16
+    edges = np.linspace(0.0, 1.0, panels + 1)
+    nodes = (0.5 * (edges[1:] - edges[:-1])[:, None] * (_GL_NODES + 1.0) + edges[:-1, None]).ravel()
+    weights = (0.5 * (edges[1:] - edges[:-1])[:, None] * _GL_WEIGHTS).ravel()
+    p = p_end[:, None] * nodes[None, :]
+    du = params[:, 1:2] + p * (2.0 * params[:, 2:3] + 3.0 * params[:, 3:4] * p)
+    dv = params[:, 5:6] + p * (2.0 * params[:, 6:7] + 3.0 * params[:, 7:8] * p)
+    return np.hypot(du, dv) @ weights * p_end
+
+
+@rule("geometry.param-poly3-length", WARNING, tolerance=0.01, unit="m",
+      summary="A paramPoly3's true arc length equals its @length.",
+      why="s along the road is arc length; readers that trust @length (most do) misplace everything after it, "
+          "and consecutive geometries stop joining.")
+def param_poly3_length(ctx, rule):
+    table = ctx.odr.arrays.geometries
+    rows = np.flatnonzero(table.kind == int(GeometryKind.PARAM_POLY3))
+    if not len(rows):
+        return
+    true_length = param_poly3_arc_lengths(table, rows)
+    difference = true_length - table.length[rows]
+    geometries = _flat_geometries(ctx.odr)
+    for k in np.flatnonzero(np.abs(difference) > rule.tolerance):
+        road, geometry = geometries[rows[k]]
+        yield Hit(f"paramPoly3 at s={geometry.s:g} is {true_length[k]:.6g} m long, @length says "
+                  f"{geometry.length:.6g} ({difference[k]:+.4g} m)", road=road.id, s=geometry.s, line=geometry.line)
+
+
+def _record_intervals(records, section_end_of_group):
+    """For a RecordTable: per record the length of its interval (to the next record of its group or the end)."""
+    group, s0 = records.group, records.s0
+    nxt = np.empty_like(s0)
+    if len(s0):
+        nxt[:-1] = s0[1:]
+        last = np.ones(len(s0), dtype=bool)
+        last[:-1] = group[1:] != group[:-1]
+        nxt[last] = section_end_of_group(group[last])
+    return nxt - s0, nxt
+
+
+def _cubic_minimum(coefficients: np.ndarray, length: np.ndarray):
+    """Minimum of a + b x + c x^2 + d x^3 on [0, length] per row, and where it is."""
+    a, b, c, d = coefficients.T
+    candidates = [np.zeros_like(length), np.maximum(length, 0.0)]
+    # stationary points: b + 2c x + 3d x^2 = 0
+    quadratic = np.abs(d) > 1e-15
+    disc = 4.0 * c * c - 12.0 * d * b
+    root = np.sqrt(np.maximum(disc, 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x1 = np.where(quadratic, (-2.0 * c + root) / (6.0 * d), np.where(np.abs(c) > 1e-15, -b / (2.0 * c), 0.0))
+        x2 = np.where(quadratic, (-2.0 * c - root) / (6.0 * d), 0.0)
+    for x in (x1, x2):
+        inside = np.isfinite(x) & (x > 0) & (x < length) & ((disc >= 0) | ~quadratic)
+        candidates.append(np.where(inside, x, 0.0))
+    xs = np.column_stack(candidates)
+    values = a[:, None] + xs * (b[:, None] + xs * (c[:, None] + xs * d[:, None]))
+    best = np.argmin(values, axis=1)
+    rows = np.arange(len(length))
+    return values[rows, best], xs[rows, best]
+
+
+@rule("geometry.negative-width", ERROR, tolerance=0.001, unit="m",
+      summary="No lane width record becomes negative anywhere in its range (exact minimum of the cubic).",
+      why="A negative width turns a lane inside out: its outer border crosses its inner border and the surface "
+          "folds over the neighbouring lane.")
+def negative_width(ctx, rule):
+    arrays = ctx.odr.arrays
+    widths = arrays.lane_width
+    if not len(widths.s0):
+        return
+    length, _ = _record_intervals(widths, lambda g: arrays.section_end[arrays.lane_section[g]])
+    minimum, where = _cubic_minimum(widths.coefficients, length)
+    active = ~arrays.lane_uses_border[widths.group] & (length > 0)
+    rows = ctx.lane_rows
+    reported = set()
+    for k in np.flatnonzero(active & (minimum < -rule.tolerance)):
+        lane_row = int(widths.group[k])
+        if lane_row in reported:
+            continue
+        reported.add(lane_row)
+        road, _, lane = rows[lane_row]
+        s = float(widths.s0[k] + where[k])
+        yield Hit(f"lane width reaches {minimum[k]:.4g} m", road=road.id, lane=lane.id, s=s, line=lane.line)
+
+
+@rule("geometry.border-crossing", ERROR, tolerance=0.001, unit="m",
+      summary="The outer border of a lane defined by <border> records never crosses its inner border "
+              "(sampled every 0.25 m).",
+      why="Crossing borders give a lane of negative width: overlapping surfaces and lanes that cannot be driven.")
+def border_crossing(ctx, rule):
+    arrays = ctx.odr.arrays
+    if not np.any(arrays.lane_uses_border):
+        return
+    from tavf_mapkit.opendrive.sampling import sample_lanes
+
+    sampling = sample_lanes(ctx.odr, step=0.25)
+    border_pairs = arrays.lane_uses_border[sampling.pair_lane]
+    signed_width = np.sign(sampling.lane_id) * (sampling.t_outer - sampling.t_inner)
+    bad = np.flatnonzero(border_pairs & (signed_width < -rule.tolerance))
+    rows = ctx.lane_rows
+    reported = set()
+    for k in bad:
+        lane_row = int(sampling.pair_lane[k])
+        if lane_row in reported:
+            continue
+        reported.add(lane_row)
+        road, _, lane = rows[lane_row]
+        yield Hit(f"outer border crosses the inner border by {-signed_width[k]:.4g} m", road=road.id, lane=lane.id,
+                  s=float(sampling.s[k]), line=lane.line)
+
+
+def _jumps(profile):
+    """(index of the later record, jump) where a piecewise cubic is discontinuous between consecutive records."""
+    if len(profile) < 2:
+        return []
+    c = profile.coefficients
+    ds = np.diff(profile.s0)
+    end_value = c[:-1, 0] + ds * (c[:-1, 1] + ds * (c[:-1, 2] + ds * c[:-1, 3]))
+    jump = c[1:, 0] - end_value
+    return [(i + 1, float(jump[i])) for i in range(len(jump)) if ds[i] > 0]
+
+
+@rule("geometry.elevation-jump", WARNING, tolerance=0.01, unit="m",
+      summary="Elevation is continuous along a road (consecutive elevation records meet).",
+      why="A step in elevation is a step in the road surface: meshes tear and vehicles hit a wall.")
+def elevation_jump(ctx, rule):
+    for road in ctx.odr.roads:
+        for index, jump in _jumps(road.elevation):
+            if abs(jump) > rule.tolerance:
+                s = float(road.elevation.s0[index])
+                yield Hit(f"elevation jumps by {jump:+.4g} m", road=road.id, s=s, line=road.line)
+
+
+@rule("geometry.border-jump", WARNING, tolerance=0.01, unit="m",
+      summary="Lane offset and each lane's width are continuous inside a lane section (consecutive records meet).",
+      why="A jump moves every lane border at once: the surface tears and lane-keeping sees a step.")
+def border_jump(ctx, rule):
+    for road in ctx.odr.roads:
+        for index, jump in _jumps(road.lane_offset):
+            if abs(jump) > rule.tolerance:
+                yield Hit(f"lane offset jumps by {jump:+.4g} m", road=road.id, s=float(road.lane_offset.s0[index]),
+                          line=road.line)
+        for k, section in enumerate(road.lane_sections):
+            end = road.section_end(k)
+            for lane in section.side_lanes:
+                profile = lane.borders if lane.uses_border else lane.widths
+                for index, jump in _jumps(profile):
+                    s = float(profile.s0[index])
+                    if abs(jump) > rule.tolerance and s < end:
+                        what = "border" if lane.uses_border else "width"
+                        yield Hit(f"lane {what} jumps by {jump:+.4g} m", road=road.id, lane=lane.id, s=s,
+                                  line=lane.line)
+
+
+@rule("geometry.zero-length-road", ERROR,
+      summary="Every road has a positive @length.",
+      why="A zero-length road has no surface; links through it connect nothing and some readers divide by it.")
+def zero_length_road(ctx, rule):
+    for road in ctx.odr.roads:
+        if not road.length > 0:
+            yield Hit(f"road @length is {road.length:g}", road=road.id, line=road.line)
+
+
+@rule("geometry.zero-length-geometry", WARNING,
+      summary="Every planView geometry has a positive @length.",
+      why="Zero-length geometries carry no road, yet their heading may contradict the neighbours; the schema "
+          "requires lengths > 0.")
+def zero_length_geometry(ctx, rule):
+    for road in ctx.odr.roads:
+        for geometry in road.reference_line.geometries:
+            if not geometry.length > 0 and math.isfinite(geometry.length):
+                yield Hit(f"geometry at s={geometry.s:g} has length 0", road=road.id, s=geometry.s,
+                          line=geometry.line)

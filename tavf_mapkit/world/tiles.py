@@ -1,0 +1,69 @@
+"""Cut meshes into collision bodies on a square grid around the world origin.
+
+A face belongs to the tile that holds its centroid; a solid stays whole in the tile of its bounding-box centre.
+A body with more than MAX_BODY_VERTICES vertices is split into quarters until it fits, so every body also fits
+pybullet's in-memory limit (131,072 vertices) should a caller load it from arrays instead of the OBJ file.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tavf_mapkit.mesh.labelled import LabelledMesh
+
+MAX_BODY_VERTICES = 100_000
+
+
+@dataclass(frozen=True, eq=False)
+class BodyPart:
+    name: str       # "tile_-1_+2_road" (a split body adds "_q0".."_q3" per level)
+    tile: str       # "tile_-1_+2"
+    index: tuple[int, int]
+    group: str      # road, roadside, curb, object, signal, building
+    mesh: LabelledMesh
+
+
+def tile_name(i: int, j: int) -> str:
+    return f"tile_{i:+d}_{j:+d}"
+
+
+def tile_of(points_xy: np.ndarray, origin_xy: np.ndarray, size: float) -> np.ndarray:
+    """(n, 2) int64 tile indices of points in OpenDRIVE local coordinates."""
+    return np.floor((points_xy - origin_xy) / size).astype(np.int64)
+
+
+def split_faces(mesh: LabelledMesh, tiles: np.ndarray, group: str) -> list[BodyPart]:
+    """One part per tile of a mesh whose faces are assigned to ``tiles`` ((m, 2) indices), sorted by tile."""
+    if not len(mesh.faces):
+        return []
+    keys, inverse = np.unique(tiles, axis=0, return_inverse=True)
+    inverse = inverse.ravel()
+    order = np.argsort(inverse, kind="stable")
+    bounds = np.searchsorted(inverse[order], np.arange(len(keys) + 1))
+    parts = []
+    for k, (i, j) in enumerate(keys):
+        mask = np.zeros(len(mesh.faces), dtype=bool)
+        mask[order[bounds[k]:bounds[k + 1]]] = True
+        name = tile_name(int(i), int(j))
+        parts.extend(_fit(BodyPart(f"{name}_{group}", name, (int(i), int(j)), group, mesh.select(mask))))
+    return parts
+
+
+def _fit(part: BodyPart) -> list[BodyPart]:
+    """The part itself, or its quarters (recursively) when it has too many vertices."""
+    mesh = part.mesh
+    if len(mesh.vertices) <= MAX_BODY_VERTICES or len(mesh.faces) < 2:
+        return [part]
+    centroid = mesh.vertices[mesh.faces].mean(axis=1)
+    mid = np.median(centroid[:, :2], axis=0)
+    quarter = (centroid[:, 0] >= mid[0]).astype(int) + 2 * (centroid[:, 1] >= mid[1]).astype(int)
+    if np.all(quarter == quarter[0]):  # all centroids on one spot: halve by face order instead
+        quarter = (np.arange(len(quarter)) >= len(quarter) // 2).astype(int)
+    out = []
+    for q in range(4):
+        mask = quarter == q
+        if np.any(mask):
+            out.extend(_fit(BodyPart(f"{part.name}_q{q}", part.tile, part.index, part.group, mesh.select(mask))))
+    return out

@@ -1,0 +1,234 @@
+"""Lane graph: exact topology on a synthetic map, connectivity invariants on real builds."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import networkx as nx
+import numpy as np
+import pytest
+
+from tavf_mapkit.lanegraph import LaneGraph, LaneKey, NoRouteError
+from tavf_mapkit.opendrive import load_opendrive, loads_opendrive
+
+
+def _lane(lane_id, width, link="", mark="broken", lane_type="driving"):
+    return (f'<lane id="{lane_id}" type="{lane_type}"><link>{link}</link>'
+            f'<width sOffset="0" a="{width}" b="0" c="0" d="0"/><roadMark sOffset="0" type="{mark}"/></lane>')
+
+
+def _road(road_id, x, y, hdg, length, sections, link="", junction="-1", rule=""):
+    rule_attr = f' rule="{rule}"' if rule else ""
+    return (f'<road id="{road_id}" length="{length}" junction="{junction}"{rule_attr}><link>{link}</link>'
+            f'<planView><geometry s="0" x="{x}" y="{y}" hdg="{hdg}" length="{length}"><line/></geometry></planView>'
+            f'<lanes>{sections}</lanes></road>')
+
+
+def _section(s0, left=(), right=()):
+    left_xml = f"<left>{''.join(left)}</left>" if left else ""
+    right_xml = f"<right>{''.join(right)}</right>" if right else ""
+    return f'<laneSection s="{s0}">{left_xml}<center><lane id="0" type="none"/></center>{right_xml}</laneSection>'
+
+
+def synthetic_map(rule: str = "") -> str:
+    """Road 1 (east, two lane sections) meets road 2 (west-pointing) end to end; road 2's start enters
+    junction 10, whose connecting road 3 leads into road 4.
+
+    Road 1 section 0 has a broken line between lanes -1 and -2, section 1 a solid one; road 2 a solid one.
+    """
+    road1 = _road("1", 0, 0, 0, 100, _section(
+        0, left=[_lane(1, 3.5, '<predecessor id="1"/>')],
+        right=[_lane(-1, 3, '<successor id="-1"/>'), _lane(-2, 3, '<successor id="-2"/>')],
+    ) + _section(
+        50, left=[_lane(1, 3.5, '<predecessor id="1"/><successor id="-1"/>')],
+        right=[_lane(-1, 3, '<predecessor id="-1"/><successor id="1"/>', mark="solid"),
+               _lane(-2, 3, '<predecessor id="-2"/><successor id="2"/>')],
+    ), link='<successor elementType="road" elementId="2" contactPoint="end"/>', rule=rule)
+    road2 = _road("2", 200, 0, math.pi, 100, _section(
+        0, left=[_lane(1, 3, '<successor id="-1"/>', mark="solid"), _lane(2, 3, '<successor id="-2"/>')],
+        right=[_lane(-1, 3.5, '<successor id="1"/>')],
+    ), link='<predecessor elementType="junction" elementId="10"/>'
+            '<successor elementType="road" elementId="1" contactPoint="end"/>', rule=rule)
+    road3 = _road("3", 200, 0, 0, 20, _section(0, right=[_lane(-1, 3, '<predecessor id="1"/><successor id="-1"/>')]),
+                  link='<predecessor elementType="road" elementId="2" contactPoint="start"/>'
+                       '<successor elementType="road" elementId="4" contactPoint="start"/>', junction="10", rule=rule)
+    road4 = _road("4", 220, 0, 0, 50, _section(0, right=[_lane(-1, 3, '<predecessor id="-1"/>'),
+                                                         _lane(-2, 2, lane_type="sidewalk")]),
+                  link='<predecessor elementType="junction" elementId="10"/>', rule=rule)
+    junction = ('<junction id="10" name="j"><connection id="0" incomingRoad="2" connectingRoad="3" '
+                'contactPoint="start"><laneLink from="1" to="-1"/></connection></junction>')
+    return ('<?xml version="1.0"?><OpenDRIVE><header revMajor="1" revMinor="6" name="lanegraph"/>'
+            f"{road1}{road2}{road3}{road4}{junction}</OpenDRIVE>")
+
+
+def follow_edges(graph: LaneGraph) -> set[tuple[LaneKey, LaneKey]]:
+    return {(a, b) for a, b, kind in graph.graph.edges(data="kind") if kind == "follow"}
+
+
+K = LaneKey
+
+
+def test_synthetic_topology_is_exact():
+    graph = LaneGraph.from_opendrive(loads_opendrive(synthetic_map()))
+    assert set(graph.keys) == {K(0, 0, 1), K(0, 0, -1), K(0, 0, -2), K(0, 1, 1), K(0, 1, -1), K(0, 1, -2),
+                               K(1, 0, 1), K(1, 0, 2), K(1, 0, -1), K(2, 0, -1), K(3, 0, -1)}  # no sidewalk
+    assert follow_edges(graph) == {
+        (K(0, 0, -1), K(0, 1, -1)), (K(0, 0, -2), K(0, 1, -2)),          # lane sections, with s
+        (K(0, 1, 1), K(0, 0, 1)),                                         # against s
+        (K(0, 1, -1), K(1, 0, 1)), (K(0, 1, -2), K(1, 0, 2)),            # end-to-end contact
+        (K(1, 0, -1), K(0, 1, 1)),
+        (K(1, 0, 1), K(2, 0, -1)),                                        # junction connection
+        (K(2, 0, -1), K(3, 0, -1)),                                       # connecting road -> road 4
+    }
+    # the broken line of section 0 allows changes both ways, the solid one of section 1 none
+    changes = {(a, b, kind) for a, b, kind in graph.graph.edges(data="kind") if kind != "follow"}
+    assert changes == {(K(0, 0, -1), K(0, 0, -2), "right"), (K(0, 0, -2), K(0, 0, -1), "left"),
+                       }
+    assert graph.neighbours(K(0, 1, -1)) == (None, K(0, 1, -2))    # lane 1 runs the other way
+    assert graph.neighbours(K(1, 0, 2)) == (K(1, 0, 1), None)      # against s, left is towards the centre
+    assert not graph.lane_change_allowed(K(0, 1, -1), "right")
+    assert graph.lane_change_allowed(K(0, 0, -1), "right")
+    assert graph.successors(K(1, 0, 1)) == [K(2, 0, -1)]
+    assert graph.predecessors(K(3, 0, -1)) == [K(2, 0, -1)]
+
+
+def test_synthetic_route_uses_the_allowed_lane_change():
+    graph = LaneGraph.from_opendrive(loads_opendrive(synthetic_map()))
+    route = graph.shortest_path(K(0, 0, -2), K(3, 0, -1))
+    assert route == [K(0, 0, -2), K(0, 0, -1), K(0, 1, -1), K(1, 0, 1), K(2, 0, -1), K(3, 0, -1)]
+    with pytest.raises(NoRouteError, match="no route"):
+        graph.shortest_path(K(3, 0, -1), K(0, 0, -1))
+    # the only cycle: changing back and forth between the two lanes of section 0 (100 m of lanes together)
+    assert graph.largest_strongly_connected() == {K(0, 0, -1), K(0, 0, -2)}
+
+
+def test_synthetic_centre_lines_lengths_and_directions():
+    graph = LaneGraph.from_opendrive(loads_opendrive(synthetic_map()))
+    points, s = graph.centerline(K(0, 0, -1), step=10.0)
+    np.testing.assert_allclose(points[:, 1], -1.5, atol=1e-9)          # centre of a 3 m lane
+    np.testing.assert_allclose(points[[0, -1], 0], [0.0, 50.0], atol=1e-9)
+    np.testing.assert_allclose(s, np.linspace(0, 50, 6))
+    points, s = graph.centerline(K(0, 1, 1), step=1.0)                # against s: x decreasing
+    np.testing.assert_allclose(points[[0, -1], 0], [100.0, 50.0], atol=1e-9)
+    np.testing.assert_allclose(points[:, 1], 1.75, atol=1e-9)
+    assert s[0] == 100.0 and s[-1] == 50.0
+    assert graph.length(K(0, 0, -1)) == pytest.approx(50.0)
+    assert graph.graph.nodes[K(0, 1, 1)]["start"] == pytest.approx((100.0, 1.75))
+    # road 2 points west: its lane 1 lies south of the x axis and carries eastbound traffic
+    points, _ = graph.centerline(K(1, 0, 1))
+    assert points[0, 0] < points[-1, 0] and np.allclose(points[:, 1], -1.5)
+
+
+def test_left_hand_traffic_reverses_every_edge():
+    right = LaneGraph.from_opendrive(loads_opendrive(synthetic_map()))
+    left = LaneGraph.from_opendrive(loads_opendrive(synthetic_map(rule="LHT")))
+    assert follow_edges(left) == {(b, a) for a, b in follow_edges(right)}
+    assert not left.drives_with_s(K(0, 0, -1)) and left.drives_with_s(K(0, 0, 1))
+
+
+def test_other_lane_types_on_request():
+    graph = LaneGraph.from_opendrive(loads_opendrive(synthetic_map()), lane_types=("driving", "sidewalk"))
+    assert K(3, 0, -2) in graph
+    assert graph.neighbours(K(3, 0, -1)) == (None, K(3, 0, -2))
+
+
+# ------------------------------------------------------------------ real builds
+
+def _reference_pose(road, end):
+    x, y, _, heading, _, _ = road.reference_point(0.0 if end == "start" else road.length)
+    return np.array([x[0], y[0]]), heading[0]
+
+
+def _angle(a, b):
+    return abs((a - b + math.pi) % (2 * math.pi) - math.pi)
+
+
+def connectivity_report(odr):
+    """Check every follow edge whose roads meet in the file (reference lines within 5 cm and headings within
+    1 deg given the contact points: what the validator's contact-point rule accepts). netconvert also writes junction roads that start
+    metres away from the road they link to; the graph follows the links, the validator reports the geometry.
+
+    Checked: the lane centres meet within 0.5 m, and the driving directions agree (no U-turn hidden in a
+    wrong driving direction). Lane centre headings are not compared: far off a sharply curved reference
+    line (a fifth lane on a junction road) the offset curve has a cusp, which is the file's geometry.
+    """
+    graph = LaneGraph.from_opendrive(odr)
+    checked, failures = 0, []
+    for a, b in sorted(follow_edges(graph)):
+        if a.road_index == b.road_index:
+            continue
+        end_a = "end" if graph.drives_with_s(a) else "start"
+        end_b = "start" if graph.drives_with_s(b) else "end"
+        point_a, heading_a = _reference_pose(odr.roads[a.road_index], end_a)
+        point_b, heading_b = _reference_pose(odr.roads[b.road_index], end_b)
+        # end meets start: the roads continue; start meets start (or end meets end): they point apart
+        flip = 0.0 if end_a != end_b else math.pi
+        if np.linalg.norm(point_a - point_b) > 0.05 or _angle(heading_a + flip, heading_b) > math.radians(1):
+            continue
+        # a lane merging into (or splitting from) a neighbour ends beside it, not on it
+        if sum(k.road_index == a.road_index for k in graph.predecessors(b)) > 1 \
+                or sum(k.road_index == b.road_index for k in graph.successors(a)) > 1:
+            continue
+        checked += 1
+        drive_a = heading_a + (0.0 if graph.drives_with_s(a) else math.pi)
+        drive_b = heading_b + (0.0 if graph.drives_with_s(b) else math.pi)
+        line_a, _ = graph.centerline(a, 0.5)
+        line_b, _ = graph.centerline(b, 0.5)
+        gap = float(np.linalg.norm(line_a[-1, :2] - line_b[0, :2]))
+        if gap > 0.5 or _angle(drive_a, drive_b) > math.radians(1):
+            failures.append((a, b, round(gap, 3), round(math.degrees(_angle(drive_a, drive_b)), 1)))
+    return graph, checked, failures
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("fixture", ["jungfernstieg_build", "tavf_dlr_build"])
+def test_real_build_connectivity(fixture, request):
+    folder = request.getfixturevalue(fixture)
+    odr = load_opendrive(folder / f"{folder.name}.xodr")
+    graph, checked, failures = connectivity_report(odr)
+    assert checked > 0.5 * len(follow_edges(graph))
+    assert failures == []
+    # every lane change joins lanes of one road section that run the same way, side by side
+    for a, b, kind in graph.graph.edges(data="kind"):
+        if kind != "follow":
+            assert a[:2] == b[:2] and graph.drives_with_s(a) == graph.drives_with_s(b)
+            assert abs(abs(a.lane_id) - abs(b.lane_id)) == 1
+
+
+def _sumo_scc_share(net_path) -> float:
+    """Largest strongly connected share of passenger-car lane length in the SUMO network itself (sumolib)."""
+    import sumolib
+
+    net = sumolib.net.readNet(str(net_path), withInternal=False)
+    graph, length = nx.DiGraph(), {}
+    for edge in net.getEdges():
+        lanes = [lane for lane in edge.getLanes() if lane.allows("passenger")]
+        for lane in lanes:
+            length[lane.getID()] = lane.getLength()
+            graph.add_node(lane.getID())
+            for connection in lane.getOutgoing():
+                if connection.getToLane().allows("passenger"):
+                    graph.add_edge(lane.getID(), connection.getToLane().getID())
+        for a, b in itertools.pairwise(lanes):
+            graph.add_edge(a.getID(), b.getID())
+            graph.add_edge(b.getID(), a.getID())
+    biggest = max(nx.strongly_connected_components(graph), key=lambda c: sum(length[k] for k in c))
+    return sum(length[k] for k in biggest) / sum(length.values())
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("fixture", ["jungfernstieg_build", "tavf_dlr_build"])
+def test_largest_strongly_connected_part_matches_the_sumo_network(fixture, request):
+    """Both extracts are clipped out of a city, so roads that leave the area are one-way dead ends; the lane
+    graph's largest strongly connected share of lane length must agree with SUMO's own lane graph."""
+    folder = request.getfixturevalue(fixture)
+    graph = LaneGraph.from_opendrive(load_opendrive(folder / f"{folder.name}.xodr"))
+    scc = graph.largest_strongly_connected()
+    share = sum(graph.length(k) for k in scc) / graph.total_length
+    assert share == pytest.approx(_sumo_scc_share(folder / f"{folder.name}.net.xml"), abs=0.04)
+    assert share > 0.25
+    # inside it, every lane reaches every other one
+    some = sorted(scc)
+    route = graph.shortest_path(some[0], some[-1])
+    assert route[0] == some[0] and route[-1] == some[-1] and set(route) <= scc

@@ -1,0 +1,98 @@
+"""Controllers (CARLA's PID semantics, pure pursuit geometry) and the path buffer's planning queries."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from twin.control.pid import (
+    CARLA_LIMITS,
+    PidGains,
+    PidLateral,
+    PidLongitudinal,
+    PidTerm,
+    heading_error,
+    limit_steering,
+    split_acceleration,
+)
+from twin.control.purepursuit import PurePursuit
+from twin.planning.buffer import PathBuffer
+from twin.planning.chunks import PathChunk
+from twin.vehicle.params import MODEL_S
+
+
+def test_pid_term_uses_carlas_ten_error_window():
+    term = PidTerm(PidGains(1.0, 0.5, 0.1, dt=0.05), 1)
+    errors = [0.1 * k for k in range(1, 15)]
+    for e in errors:
+        out = term(np.array([e]))
+    window = errors[-10:]
+    expected = 1.0 * errors[-1] + 0.1 * (errors[-1] - errors[-2]) / 0.05 + 0.5 * sum(window) * 0.05
+    assert out[0] == pytest.approx(min(expected, 1.0))
+    term = PidTerm(PidGains(1.0, 0.5, 0.1, dt=0.05), 1)
+    assert term(np.array([0.2]))[0] == pytest.approx(0.2)  # one error: no derivative, no integral yet
+
+
+def test_carla_defaults_and_actuator_limits():
+    lateral, longitudinal = PidLateral(1), PidLongitudinal(1)
+    assert (lateral.term.gains.k_p, lateral.term.gains.k_i, lateral.term.gains.k_d) == (1.95, 0.05, 0.2)
+    assert (longitudinal.term.gains.k_p, longitudinal.term.gains.k_i, longitudinal.term.gains.k_d) == (1.0, 0.05, 0)
+    throttle, brake = split_acceleration(np.array([0.9, -0.9, 0.2]), CARLA_LIMITS)
+    assert throttle.tolist() == [0.75, 0.0, 0.2] and brake.tolist() == [0.0, 0.3, 0.0]
+    assert limit_steering(np.array([1.0]), np.array([0.0]), CARLA_LIMITS)[0] == pytest.approx(0.1)
+    assert limit_steering(np.array([1.0]), np.array([0.75]), CARLA_LIMITS)[0] == pytest.approx(0.8)
+    # the longitudinal error is in km/h as in CARLA: 1 m/s short of the target saturates K_P=1
+    assert longitudinal(np.array([10.0]), np.array([11.0]))[0] == 1.0
+
+
+def test_heading_error_sign():
+    assert heading_error(0.0, 0.0, 0.0, 1.0, 1.0) == pytest.approx(math.pi / 4)  # target on the left
+    assert heading_error(0.0, 0.0, math.pi / 2, 1.0, 1.0) == pytest.approx(-math.pi / 4)
+
+
+def test_pure_pursuit_steers_onto_the_circle_through_the_target():
+    controller = PurePursuit(1)
+    radius = 20.0
+    rear = np.array([0.0, 0.0])  # rear axle at the origin heading +x: the circle's centre is (0, R)
+    angle = 0.4
+    target = np.array([radius * math.sin(angle), radius - radius * math.cos(angle)])
+    cg = rear + np.array([MODEL_S.cg_to_rear_axle, 0.0])
+    steer = controller.steer(cg[0:1], cg[1:2], np.zeros(1), np.zeros(1), target[0:1], target[1:2], MODEL_S)
+    assert steer[0] * MODEL_S.max_steer == pytest.approx(math.atan(MODEL_S.wheelbase / radius))
+
+
+def _buffer_with(points, speed=10.0, count=1, **kwargs):
+    buffer = PathBuffer(count, **kwargs)
+    chunk = PathChunk(points, np.full(len(points), speed), np.zeros(len(points), dtype=np.int64))
+    for i in range(count):
+        buffer.assign(i, iter([chunk]))
+    return buffer
+
+
+def test_projection_and_lookahead_on_a_straight_path():
+    xs = np.arange(0.0, 100.0, 1.0)
+    buffer = _buffer_with(np.column_stack([xs, np.zeros_like(xs), 0.01 * xs]), count=2)
+    projection = buffer.project(np.array([10.3, 40.5]), np.array([0.5, -1.0]))
+    assert projection.s[0] == pytest.approx(10.3)
+    # the search window (24 segments) keeps projections local: vehicle 1, 40 m ahead, is not found at x=40
+    assert projection.s[1] == pytest.approx(24.0)
+    assert projection.lateral[0] == pytest.approx(0.5) and projection.z[0] == pytest.approx(0.103)
+    tx, ty = buffer.point_at(projection.s + 5.0)
+    assert tx[0] == pytest.approx(15.3) and ty[0] == pytest.approx(0.0)
+
+
+def test_curvature_limits_speed_and_the_end_of_a_finite_route_stops_the_car():
+    radius = 15.0
+    angles = np.arange(0.0, math.pi, 1.0 / radius)
+    arc = np.column_stack([radius * np.sin(angles), radius - radius * np.cos(angles), np.zeros_like(angles)])
+    straight = np.column_stack([np.arange(-60.0, 0.0, 1.0), np.zeros(60), np.zeros(60)])
+    buffer = _buffer_with(np.concatenate([straight, arc]), speed=20.0, lateral_accel=2.5)
+    inside = buffer.vmax[0, 70:80]
+    assert np.allclose(inside, math.sqrt(2.5 * radius), rtol=0.02)
+    buffer.project(np.array([-60.0]), np.array([0.0]))
+    # braking at 2 m/s^2 from the straight's start towards the bend: sqrt(v_bend^2 + 2 a d)
+    allowed = buffer.allowed_speed(buffer.s[:, 0], 2.0)
+    assert allowed[0] == pytest.approx(min(20.0, math.sqrt(2.5 * radius + 2 * 2.0 * 59.0)), rel=0.03)
+    assert buffer.vmax[0, buffer.count[0] - 1] == 0.0 and buffer.exhausted[0]

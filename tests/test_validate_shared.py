@@ -1,0 +1,75 @@
+"""The shared files: validate reports exactly the known, explained findings (docs/validation-rules.md)."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+
+from tavf_mapkit.opendrive import load_opendrive
+from tavf_mapkit.validate import validate_file
+
+GEOREFERENCE_CONTRADICTION = {"georeference.plausible": 3}
+EXPECTED_ERRORS = {
+    ("esmini", "crest-curve.xodr"): {},
+    ("esmini", "curves_elevation.xodr"): {},
+    ("esmini", "e6mini.xodr"): GEOREFERENCE_CONTRADICTION,
+    ("esmini", "fabriksgatan.xodr"): {},
+    ("esmini", "jolengatan.xodr"): {},
+    ("esmini", "multi_intersections.xodr"): {},
+    ("esmini", "soderleden.xodr"): {**GEOREFERENCE_CONTRADICTION, "topology.contact-gap": 1},
+    ("esmini", "straight_500m.xodr"): GEOREFERENCE_CONTRADICTION,
+    ("esmini", "straight_500m_signs.xodr"): {},
+    ("esmini", "two_plus_one.xodr"): {},
+    ("libopendrive", "test.xodr"): {"geometry.gap": 1},
+}
+
+
+def error_counts(report) -> dict:
+    counts: dict = {}
+    for finding in report.errors:
+        counts[finding.rule] = counts.get(finding.rule, 0) + 1
+    return counts
+
+
+@pytest.mark.parametrize("folder, name", sorted(EXPECTED_ERRORS))
+def test_reference_files_have_only_the_explained_errors(shared, folder, name):
+    report = validate_file(shared("xodr", folder, name))
+    assert error_counts(report) == EXPECTED_ERRORS[(folder, name)], report.format_text()
+
+
+def test_explained_errors_are_where_the_docs_say(shared):
+    [gap] = validate_file(shared("xodr", "libopendrive", "test.xodr")).by_rule("geometry.gap")
+    assert gap.road == "346" and "0.001013 m" in gap.message
+    [contact] = validate_file(shared("xodr", "esmini", "soderleden.xodr")).by_rule("topology.contact-gap")
+    assert contact.road == "7" and "road 2" in contact.message and "66.3 m" in contact.message
+
+
+def _check_netconvert_invariants(path):
+    """netconvert's defects are all inside junctions: plain roads join exactly, length errors are 0.1 m stubs."""
+    odr = load_opendrive(path)
+    report = validate_file(path)
+    allowed = {"geometry.length", "topology.contact-gap"}
+    assert set(error_counts(report)) <= allowed, report.format_text()
+    assert all(odr.road_by_id[f.road].length <= 0.1 + 1e-9 for f in report.by_rule("geometry.length"))
+    for finding in report.by_rule("topology.contact-gap") + report.by_rule("topology.contact-heading"):
+        assert odr.road_by_id[finding.road].in_junction, finding
+    assert not report.by_rule("topology.missing-road") and not report.by_rule("topology.lane-link-target")
+    return report
+
+
+@pytest.mark.slow
+def test_netconvert_tavf_file(tavf_xodr):
+    report = _check_netconvert_invariants(tavf_xodr)
+    dangling = report.by_rule("topology.dead-end-junction-link")
+    assert len(dangling) == 40 and all(f.severity == "warning" for f in dangling)
+    assert not report.by_rule("topology.missing-junction")
+    # U-turn connecting roads start at atan(1/2) = 26.6 degrees to the lane they continue
+    assert any(re.search(r"differs by 26\.6 deg", f.message) for f in report.by_rule("topology.contact-heading"))
+
+
+@pytest.mark.slow
+def test_jungfernstieg_build(jungfernstieg_build):
+    report = _check_netconvert_invariants(jungfernstieg_build / "jungfernstieg.xodr")
+    assert not report.by_rule("topology.dead-end-junction-link")  # the pipeline removes netconvert's dangling links
+    assert not report.by_rule("georeference.plausible") and not report.by_rule("georeference.missing")

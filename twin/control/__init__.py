@@ -1,0 +1,1 @@
+"""Controllers: CARLA-style lateral/longitudinal PID and pure pursuit, vectorised over vehicles."""

@@ -1,0 +1,217 @@
+"""Per-vehicle dense paths in fixed-size arrays, so projection and look-ahead are vectorised over a fleet.
+
+Row i holds vehicle i's path ahead (and a little behind): points about 1 m apart, their arc length ``s``,
+the allowed speed ``vmax`` (speed limit and the curvature limit sqrt(a_lat / kappa)) and the lane code.
+Routes arrive as chunks from an iterator per vehicle and are pulled in while less than ``horizon`` metres
+lie ahead; consumed points are shifted out.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from twin.planning.chunks import PathChunk
+
+CURVATURE_SPAN = 2.0  # m either side over which heading change gives the curvature
+JOIN_GAP = 0.25  # m: a chunk starting farther than this from the path's end is joined by a blend
+JOIN_PER_GAP = 4.0  # the blend replaces this many metres of path per metre of gap on each side...
+JOIN_MIN, JOIN_MAX = 2.0, 10.0  # ...within these bounds
+KEEP_BEHIND = 16  # points kept behind the vehicle when shifting
+
+
+@dataclass(frozen=True, eq=False)
+class Projection:
+    index: np.ndarray  # segment index per vehicle
+    s: np.ndarray  # arc length of the projected point
+    lateral: np.ndarray  # signed distance to the path, positive = vehicle left of the path
+    heading: np.ndarray  # path heading at the projection
+    z: np.ndarray  # path height at the projection
+
+
+class PathBuffer:
+    def __init__(self, count: int, capacity: int = 4096, horizon: float = 300.0, lateral_accel: float = 2.5,
+                 window: int = 24):
+        self.capacity = capacity
+        self.horizon = horizon
+        self.lateral_accel = lateral_accel
+        self.window = window
+        shape = (count, capacity)
+        self.x, self.y, self.z = np.zeros(shape), np.zeros(shape), np.zeros(shape)
+        self.s, self.vmax = np.zeros(shape), np.zeros(shape)
+        self.lane = np.zeros(shape, dtype=np.int64)
+        self.count = np.zeros(count, dtype=np.int64)
+        self.base = np.zeros(count, dtype=np.int64)
+        self.sources: list[Iterator[PathChunk] | None] = [None] * count
+        self.exhausted = np.zeros(count, dtype=bool)
+        self._rows = np.arange(count)
+
+    # ------------------------------------------------------------------ filling
+    def assign(self, i: int, source: Iterator[PathChunk]) -> None:
+        """Give vehicle i a new route (its old path is dropped)."""
+        self.sources[i] = source
+        self.count[i] = 0
+        self.base[i] = 0
+        self.exhausted[i] = False
+        self.refill(i)
+
+    def remaining(self, i: int) -> float:
+        if self.count[i] == 0:
+            return 0.0
+        return float(self.s[i, self.count[i] - 1] - self.s[i, self.base[i]])
+
+    def refill(self, i: int) -> None:
+        while not self.exhausted[i] and self.remaining(i) < self.horizon:
+            chunk = next(self.sources[i], None)
+            if chunk is None:
+                self.exhausted[i] = True
+                if self.count[i]:
+                    self.vmax[i, self.count[i] - 1] = 0.0  # stop at the end of a finite route
+                break
+            self._append(i, chunk)
+
+    def refill_all(self) -> None:
+        """Top up every row whose path ahead has become short (cheap check first)."""
+        n = self.count
+        last = self.s[self._rows, np.maximum(n - 1, 0)]
+        short = (last - self.s[self._rows, self.base] < 0.5 * self.horizon) & ~self.exhausted
+        for i in np.flatnonzero(short):
+            self.refill(int(i))
+
+    def _append(self, i: int, chunk: PathChunk) -> None:
+        points = chunk.points
+        n = int(self.count[i])
+        if n and len(points):
+            gap = float(np.hypot(points[0, 0] - self.x[i, n - 1], points[0, 1] - self.y[i, n - 1]))
+            if gap < 1e-3:
+                chunk = chunk.slice(1)
+            elif gap > JOIN_GAP:
+                chunk = self._blend(i, chunk, gap)
+            points = chunk.points
+        if not len(points):
+            return
+        if n + len(points) > self.capacity:
+            self._shift(i)
+            n = int(self.count[i])
+            if n + len(points) > self.capacity:
+                chunk = chunk.slice(0, self.capacity - n)
+                points = chunk.points
+        m = n + len(points)
+        self.x[i, n:m], self.y[i, n:m], self.z[i, n:m] = points[:, 0], points[:, 1], points[:, 2]
+        self.lane[i, n:m] = chunk.lane_code
+        start = self.s[i, n - 1] if n else 0.0
+        previous = (self.x[i, n - 1], self.y[i, n - 1]) if n else (points[0, 0], points[0, 1])
+        steps = np.hypot(np.diff(np.concatenate([[previous[0]], points[:, 0]])),
+                         np.diff(np.concatenate([[previous[1]], points[:, 1]])))
+        self.s[i, n:m] = start + np.cumsum(steps)
+        self.vmax[i, n:m] = chunk.speed_limit
+        self.count[i] = m
+        self._curvature_limit(i, max(n - 8, 0), m)
+
+    def _blend(self, i: int, chunk: PathChunk, gap: float) -> PathChunk:
+        """Where lane ends do not meet (a lane merging into its neighbour, a kink between roads), drop the last
+        ``2 * join`` metres of the path not yet reached, so the path crosses over to the chunk's start on a
+        straight diagonal like a lane change, inside the lanes it leaves, instead of jumping sideways."""
+        join = float(np.clip(JOIN_PER_GAP * gap, JOIN_MIN, JOIN_MAX))
+        n = int(self.count[i])
+        keep_until = min(int(self.base[i]) + 2, n)
+        cut = int(np.searchsorted(self.s[i, :n], self.s[i, n - 1] - 2.0 * join, side="right"))
+        self.count[i] = max(cut, keep_until, 1)
+        return chunk
+
+    def _shift(self, i: int) -> None:
+        drop = int(max(self.base[i] - KEEP_BEHIND, 0))
+        if drop == 0:
+            return
+        n = int(self.count[i])
+        for array in (self.x, self.y, self.z, self.s, self.vmax, self.lane):
+            array[i, : n - drop] = array[i, drop:n]
+        self.count[i] = n - drop
+        self.base[i] -= drop
+
+    def _curvature_limit(self, i: int, start: int, stop: int) -> None:
+        """Lower vmax of points start..stop to sqrt(a_lat / kappa), kappa from heading change over +-2 m."""
+        lo = max(start - 8, 0)
+        n = int(self.count[i])
+        x, y, s = self.x[i, lo:n], self.y[i, lo:n], self.s[i, lo:n]
+        if len(x) < 3:
+            return
+        seg = np.hypot(np.diff(x), np.diff(y))
+        heading = np.arctan2(np.diff(y), np.diff(x))
+        valid = seg > 1e-3
+        # zero-length segments take the heading of the last real one
+        index = np.maximum.accumulate(np.where(valid, np.arange(len(seg)), 0))
+        heading = np.unwrap(heading[index])
+        q = s[start - lo:stop - lo]
+        middle = 0.5 * (s[1:] + s[:-1])  # arc length of each segment's midpoint
+
+        def segment_at(sq):
+            return np.clip(np.searchsorted(s, sq, side="right") - 1, 0, len(heading) - 1)
+
+        before, after = segment_at(q - CURVATURE_SPAN), segment_at(q + CURVATURE_SPAN)
+        span = np.maximum(middle[after] - middle[before], 1e-3)
+        kappa = np.where(after > before, np.abs(heading[after] - heading[before]) / span, 0.0)
+        limit = np.sqrt(self.lateral_accel / np.maximum(kappa, 1e-6))
+        self.vmax[i, start:stop] = np.minimum(self.vmax[i, start:stop], limit)
+
+    # ------------------------------------------------------------------ queries
+    def _gather(self, array: np.ndarray, index: np.ndarray) -> np.ndarray:
+        return array[self._rows[:, None], index]
+
+    def project(self, x: np.ndarray, y: np.ndarray) -> Projection:
+        """Nearest point on each path within ``window`` segments ahead of the last projection; advances ``base``."""
+        last_segment = np.maximum(self.count - 2, 0)
+        index = np.minimum(self.base[:, None] + np.arange(self.window)[None, :], last_segment[:, None])
+        ax, ay = self._gather(self.x, index), self._gather(self.y, index)
+        dx, dy = self._gather(self.x, index + 1) - ax, self._gather(self.y, index + 1) - ay
+        length_sq = np.maximum(dx * dx + dy * dy, 1e-12)
+        px, py = x[:, None] - ax, y[:, None] - ay
+        f = np.clip((px * dx + py * dy) / length_sq, 0.0, 1.0)
+        ex, ey = px - f * dx, py - f * dy
+        best = np.argmin(ex * ex + ey * ey, axis=1)
+        r = self._rows
+        segment = index[r, best]
+        self.base = segment
+        fb, dxb, dyb = f[r, best], dx[r, best], dy[r, best]
+        length = np.sqrt(length_sq[r, best])
+        lateral = (dxb * py[r, best] - dyb * px[r, best]) / length
+        s = self.s[r, segment] + fb * (self.s[r, segment + 1] - self.s[r, segment])
+        z = self.z[r, segment] + fb * (self.z[r, segment + 1] - self.z[r, segment])
+        return Projection(segment, s, lateral, np.arctan2(dyb, dxb), z)
+
+    def point_at(self, s_target: np.ndarray, window: int = 64) -> tuple[np.ndarray, np.ndarray]:
+        """(x, y) at arc length ``s_target`` (clamped to the path's end)."""
+        last = np.maximum(self.count - 1, 0)
+        index = np.minimum(self.base[:, None] + np.arange(window)[None, :], last[:, None])
+        s = self._gather(self.s, index)
+        k = np.clip((s < s_target[:, None]).sum(axis=1), 1, window - 1)
+        r = self._rows
+        i1, i0 = index[r, k], index[r, k - 1]
+        span = self.s[r, i1] - self.s[r, i0]
+        f = np.where(span > 1e-9, np.clip((s_target - self.s[r, i0]) / np.where(span > 1e-9, span, 1.0), 0, 1), 1.0)
+        return (self.x[r, i0] + f * (self.x[r, i1] - self.x[r, i0]),
+                self.y[r, i0] + f * (self.y[r, i1] - self.y[r, i0]))
+
+    def allowed_speed(self, s_now: np.ndarray, decel: float, window: int = 160) -> np.ndarray:
+        """The highest speed from which every vmax ahead is reachable braking at ``decel``."""
+        last = np.maximum(self.count - 1, 0)
+        index = np.minimum(self.base[:, None] + np.arange(window)[None, :], last[:, None])
+        distance = np.maximum(self._gather(self.s, index) - s_now[:, None], 0.0)
+        vmax = self._gather(self.vmax, index)
+        return np.sqrt(np.min(vmax * vmax + 2.0 * decel * distance, axis=1))
+
+    def at_end(self, s_now: np.ndarray, margin: float = 1.0) -> np.ndarray:
+        """True for vehicles whose finite route is driven to its end."""
+        last = self.s[self._rows, np.maximum(self.count - 1, 0)]
+        return self.exhausted & (s_now >= last - margin)
+
+    def lane_code(self, projection: Projection) -> np.ndarray:
+        return self.lane[self._rows, projection.index]
+
+    def path_ahead(self, i: int, distance: float) -> np.ndarray:
+        """(n, 3) path points of vehicle i from its projection on, up to ``distance`` metres."""
+        b, n = int(self.base[i]), int(self.count[i])
+        stop = b + int(np.searchsorted(self.s[i, b:n], self.s[i, b] + distance, side="right"))
+        return np.column_stack([self.x[i, b:stop], self.y[i, b:stop], self.z[i, b:stop]])

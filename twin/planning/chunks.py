@@ -1,0 +1,135 @@
+"""Routes as lanes -> dense polylines ("chunks") the path buffer consumes."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from tavf_mapkit.lanegraph import LaneKey
+from twin.map.lanelines import LaneLines
+
+DEFAULT_SPEED = 50.0 / 3.6  # m/s when the map sets no limit (urban default)
+LANE_CHANGE_MAX = 25.0  # m of a lane change manoeuvre at most
+# netconvert writes sub-metre connecting roads whose heading is numerically meaningless, so their lanes can
+# lie metres to the wrong side; such lanes add no points and the path joins their neighbours directly
+DEGENERATE_LANE = 1.0
+
+
+@dataclass(frozen=True, eq=False)
+class PathChunk:
+    """A stretch of path: points (n, 3), the speed limit and the lane (index into a LaneCodes) per point."""
+
+    points: np.ndarray
+    speed_limit: np.ndarray
+    lane_code: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    @staticmethod
+    def concat(chunks: Sequence[PathChunk]) -> PathChunk:
+        return PathChunk(np.concatenate([c.points for c in chunks]), np.concatenate([c.speed_limit for c in chunks]),
+                         np.concatenate([c.lane_code for c in chunks]))
+
+    def slice(self, start: int, stop: int | None = None) -> PathChunk:
+        return PathChunk(self.points[start:stop], self.speed_limit[start:stop], self.lane_code[start:stop])
+
+
+class LaneCodes:
+    """Lane keys <-> small integers, so paths can carry the lane of every point in an int array."""
+
+    def __init__(self, graph):
+        self.graph = graph
+        self.keys: list[LaneKey] = []
+        self._codes: dict[LaneKey, int] = {}
+        self.road_ids: list[str] = []
+
+    def code(self, key: LaneKey) -> int:
+        found = self._codes.get(key)
+        if found is None:
+            found = self._codes[key] = len(self.keys)
+            self.keys.append(key)
+            self.road_ids.append(self.graph.road_id(key))
+        return found
+
+    def road_id(self, code: int) -> str:
+        return self.road_ids[code]
+
+    def lane_id(self, code: int) -> int:
+        return self.keys[code].lane_id
+
+
+def lane_chunk(lines: LaneLines, codes: LaneCodes, key: LaneKey, start: float = 0.0,
+               stop: float | None = None) -> PathChunk:
+    """The lane's centre line from ``start`` to ``stop`` metres along it."""
+    line = lines[key]
+    if line.length < DEGENERATE_LANE:
+        return PathChunk(np.zeros((0, 3)), np.zeros(0), np.zeros(0, dtype=np.int64))
+    stop = line.length if stop is None else stop
+    keep = (line.along >= start - 1e-9) & (line.along <= stop + 1e-9)
+    points = line.points[keep]
+    if len(points) == 0:  # a window between two samples: its nearest sample keeps the path continuous
+        points = line.points[[int(np.argmin(np.abs(line.along - 0.5 * (start + stop))))]]
+    limit = line.speed_limit if line.speed_limit else DEFAULT_SPEED
+    return PathChunk(points, np.full(len(points), limit), np.full(len(points), codes.code(key)))
+
+
+@dataclass(frozen=True)
+class Span:
+    """Lane ``key`` (position ``index`` in its route) from ``start`` to ``stop`` metres along (None: the end)."""
+
+    index: int
+    key: LaneKey
+    start: float
+    stop: float | None
+
+
+def route_spans(lines: LaneLines, graph, route: Iterable[LaneKey], first_along: float = 0.0) -> Iterator[Span]:
+    """The stretch of each lane a route drives (any iterable, also endless). A run of lane changes inside one
+    lane section splits that section between the lanes, each transition a straight diagonal of up to
+    ``LANE_CHANGE_MAX`` metres. The first lane starts ``first_along`` metres in."""
+    edges = graph.graph
+    keys = iter(route)
+    pending = next(keys, None)
+    index = 0
+    first = True
+    while pending is not None:
+        run = [pending]
+        pending = next(keys, None)
+        while pending is not None and pending in edges[run[-1]] and edges.edges[run[-1], pending]["kind"] != "follow":
+            run.append(pending)
+            pending = next(keys, None)
+        offset = first_along if first else 0.0
+        first = False
+        if len(run) == 1:
+            yield Span(index, run[0], offset, None)
+            index += 1
+            continue
+        length = min(lines[key].length for key in run)
+        offset = min(offset, 0.5 * length)
+        part = (length - offset) / len(run)
+        gap = min(LANE_CHANGE_MAX, 0.6 * part)
+        for j, key in enumerate(run):
+            scale = lines[key].length / max(length, 1e-9)
+            start = offset if j == 0 else (offset + j * part + 0.5 * gap) * scale
+            stop = None if j == len(run) - 1 else (offset + (j + 1) * part - 0.5 * gap) * scale
+            yield Span(index, key, start, stop)
+            index += 1
+
+
+def expand_route(lines: LaneLines, codes: LaneCodes, route: Iterable[LaneKey],
+                 first_along: float = 0.0) -> Iterator[PathChunk]:
+    """Chunks of a lane route (see ``route_spans``)."""
+    for span in route_spans(lines, codes.graph, route, first_along):
+        yield lane_chunk(lines, codes, span.key, span.start, span.stop)
+
+
+def with_speed(chunks: Iterable[PathChunk], speed: float | None) -> Iterator[PathChunk]:
+    """The chunks with a fixed target speed (m/s) in place of their own; unchanged when ``speed`` is None."""
+    for chunk in chunks:
+        if speed is None:
+            yield chunk
+        else:
+            yield PathChunk(chunk.points, np.full(len(chunk), float(speed)), chunk.lane_code)

@@ -1,0 +1,62 @@
+"""The local planner: from the path buffer and the vehicle state to steer, throttle and brake (N vehicles).
+
+Target point: the path point ``controller.lookahead(speed)`` metres ahead of the projection (CARLA picks
+the first waypoint further than 3 m + 0.5 s x speed). Target speed: the route's speed (limit, recording or
+``--speed``), capped so every tighter bend and the route's end ahead can be reached braking at ``decel``,
+and by any cap the session passes (hooks: red lights, leaders).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from twin.control.pid import CARLA_LIMITS, ActuatorLimits, PidLongitudinal, limit_steering, split_acceleration
+from twin.planning.buffer import PathBuffer, Projection
+from twin.vehicle.dynamics import BicycleState
+from twin.vehicle.params import VehicleParams
+
+
+@dataclass(frozen=True, eq=False)
+class ControlOutput:
+    steer: np.ndarray
+    throttle: np.ndarray
+    brake: np.ndarray
+    target_speed: np.ndarray
+    projection: Projection
+
+
+class LocalPlanner:
+    def __init__(self, buffer: PathBuffer, lateral, params: VehicleParams, count: int,
+                 limits: ActuatorLimits = CARLA_LIMITS, decel: float = 2.0):
+        self.buffer = buffer
+        self.lateral = lateral
+        self.longitudinal = PidLongitudinal(count)
+        self.params = params
+        self.limits = limits
+        self.decel = decel
+        self.previous_steer = np.zeros(count)
+
+    def reset(self, mask: np.ndarray) -> None:
+        self.lateral.reset(mask)
+        self.longitudinal.reset(mask)
+        self.previous_steer = np.where(mask, 0.0, self.previous_steer)
+
+    def control(self, state: BicycleState, speed_cap: np.ndarray | None = None) -> ControlOutput:
+        buffer = self.buffer
+        projection = buffer.project(state.x, state.y)
+        speed = state.speed
+        target_speed = buffer.allowed_speed(projection.s, self.decel)
+        if speed_cap is not None:
+            target_speed = np.minimum(target_speed, speed_cap)
+        tx, ty = buffer.point_at(projection.s + self.lateral.lookahead(speed))
+        steer = self.lateral.steer(state.x, state.y, state.yaw, speed, tx, ty, self.params)
+        steer = limit_steering(steer, self.previous_steer, self.limits)
+        self.previous_steer = steer
+        throttle, brake = split_acceleration(self.longitudinal(speed, target_speed), self.limits)
+        # hold a stopped car with the full brake, as a driver would at the end of a route
+        hold = (target_speed < 0.05) & (speed < 0.5)
+        brake = np.where(hold, 1.0, brake)
+        throttle = np.where(hold, 0.0, throttle)
+        return ControlOutput(steer, throttle, brake, target_speed, projection)

@@ -1,0 +1,1 @@
+"""The ``twin drive`` session: loop, hooks, outputs and metrics."""

@@ -1,0 +1,124 @@
+"""The twin's own vehicles (vehicle 0 is the ego): bicycle model + pybullet bodies + path buffer + planner.
+
+Each ``step`` controls, moves and grounds every vehicle at once, then applies the rules of the road the
+simulation enforces: a wheel that jumps up a curb or a box that touches a static solid (curb, building,
+object) stops the car and is logged as a collision; a stopped-by-collision, lost (more than ``lost_m`` off
+its path) or stuck car is reset onto its path and counted.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from twin.planning.buffer import PathBuffer
+from twin.planning.local_planner import ControlOutput, LocalPlanner
+from twin.vehicle.body import CURB_STEP, Ground, VehicleBodies
+from twin.vehicle.dynamics import BicycleModel, BicycleState, stopped
+
+
+@dataclass(frozen=True)
+class Collision:
+    t: float
+    vehicle: int
+    kind: str  # "curb", "solid" or whatever a hook reports
+    other: str
+    x: float
+    y: float
+    detail: str = ""
+
+
+@dataclass
+class FleetCounters:
+    resets: np.ndarray
+    collisions: list[Collision] = field(default_factory=list)
+    stuck_seconds: np.ndarray | None = None
+
+
+class Fleet:
+    def __init__(self, model: BicycleModel, bodies: VehicleBodies, buffer: PathBuffer, planner: LocalPlanner,
+                 dt: float, solid_ids: frozenset[int] = frozenset(), body_names: dict[int, str] | None = None,
+                 lost_m: float = 4.0, stuck_s: float = 20.0):
+        self.model = model
+        self.bodies = bodies
+        self.buffer = buffer
+        self.planner = planner
+        self.dt = dt
+        self.solid_ids = solid_ids
+        self.body_names = body_names or {}
+        self.lost_m = lost_m
+        self.stuck_s = stuck_s
+        n = len(bodies.body_ids)
+        self.count = n
+        self.counters = FleetCounters(np.zeros(n, dtype=np.int64), stuck_seconds=np.zeros(n))
+        self.state: BicycleState | None = None
+        self.ground: Ground | None = None
+        self.control: ControlOutput | None = None
+        self._fresh = np.ones(n, dtype=bool)  # no curb check right after a (re)placement
+
+    # ------------------------------------------------------------------ placement
+    def place_on_paths(self, mask: np.ndarray | None = None) -> None:
+        """Put vehicles (all, or the masked ones) at rest on their path at their current projection."""
+        b = self.buffer
+        n = self.count
+        mask = np.ones(n, dtype=bool) if mask is None else mask
+        rows = np.arange(n)
+        i = np.minimum(b.base, np.maximum(b.count - 2, 0))
+        heading = np.arctan2(b.y[rows, i + 1] - b.y[rows, i], b.x[rows, i + 1] - b.x[rows, i])
+        fresh = BicycleState.at(b.x[rows, i], b.y[rows, i], heading, 0.0)
+        self.state = fresh if self.state is None else self.state.take(mask, fresh)
+        self.bodies.reset_heights(b.z[rows, i], mask)
+        self.planner.reset(mask)
+        self._fresh |= mask
+        self.ground = self.bodies.ground(self.state.x, self.state.y, self.state.yaw, b.z[rows, i])
+        self.bodies.place(self.state.x, self.state.y, self.state.yaw, self.ground)
+
+    # ------------------------------------------------------------------ stepping
+    def step(self, t: float, speed_cap: np.ndarray | None = None) -> None:
+        self.buffer.refill_all()
+        control = self.planner.control(self.state, speed_cap)
+        self.control = control
+        previous_wheels = self.ground.wheel_z
+        state = self.model.step(self.state, control.steer, control.throttle, control.brake, self.dt,
+                                pitch=self.ground.pitch)
+        ground = self.bodies.ground(state.x, state.y, state.yaw, control.projection.z)
+        self.bodies.place(state.x, state.y, state.yaw, ground)
+        jump = (ground.wheel_z - previous_wheels > CURB_STEP) & ground.wheel_hit
+        curb = np.any(jump, axis=1) & ~self._fresh
+        self._fresh[:] = False
+        hit = curb.copy()
+        for i in np.flatnonzero(curb):
+            wheel = int(np.argmax(ground.wheel_z[i] - previous_wheels[i]))
+            body = int(ground.wheel_body[i, wheel])
+            self._log(t, int(i), "curb", self.body_names.get(body, f"body {body}"), state,
+                      f"wheel {wheel} up {ground.wheel_z[i, wheel] - previous_wheels[i, wheel]:.2f} m")
+        if self.solid_ids:
+            for i in range(self.count):
+                if hit[i]:
+                    continue
+                touching = self.bodies.touching(i, self.solid_ids)
+                if touching:
+                    body, depth = touching[0]
+                    hit[i] = True
+                    self._log(t, i, "solid", self.body_names.get(body, f"body {body}"), state,
+                              f"penetration {depth:.2f} m")
+        if np.any(hit):
+            state = stopped(state, hit)
+        self.state, self.ground = state, ground
+        counters = self.counters
+        moving_wanted = control.target_speed > 1.0
+        counters.stuck_seconds = np.where(moving_wanted & (state.speed < 0.1), counters.stuck_seconds + self.dt, 0.0)
+        lost = np.abs(control.projection.lateral) > self.lost_m
+        reset = hit | lost | (counters.stuck_seconds > self.stuck_s)
+        if np.any(reset):
+            counters.resets += reset
+            counters.stuck_seconds = np.where(reset, 0.0, counters.stuck_seconds)
+            self.place_on_paths(reset)
+
+    def record_collision(self, t: float, vehicle: int, kind: str, other: str, detail: str = "") -> None:
+        self._log(t, vehicle, kind, other, self.state, detail)
+
+    def _log(self, t, i, kind, other, state, detail):
+        self.counters.collisions.append(Collision(float(t), int(i), kind, other, float(state.x[i]),
+                                                  float(state.y[i]), detail))
