@@ -31,7 +31,7 @@ THRESHOLDS = {
 @register_stage("check")
 class CheckStage(Stage):
     inputs = ("xodr",)
-    version = "1"
+    version = "2"  # 2: compare.json names the xodr by file name
     description = "validate, georeference round trip, compare / match-trace against the pipeline's references"
 
     def options(self, context: BuildContext) -> dict:
@@ -106,6 +106,7 @@ class CheckStage(Stage):
             context.note(f"compare skipped: {error}")
             return {"error": str(error)}
         report = comparison.to_dict()
+        report["build"] = xodr.name  # the staging folder's path would be a dead reference after the build
         context.output_path("report/compare.json").write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
         plot_comparison(comparison, context.output_path("report/compare.png"))
         files.update({"compare_report": "report/compare.json", "compare_plot": "report/compare.png"})
