@@ -87,4 +87,4 @@ class LabelledMesh:
     @classmethod
     def load_npz(cls, path: str | Path) -> LabelledMesh:
         with np.load(path, allow_pickle=False) as data:
-            return cls(*(data[name] if name in data else None for name in cls._ARRAYS))
+            return cls(*(data.get(name, None) for name in cls._ARRAYS))

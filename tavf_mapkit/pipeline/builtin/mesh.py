@@ -15,7 +15,7 @@ from tavf_mapkit.pipeline.stages import Stage, StageOutput, register_stage
 class MeshStage(Stage):
     inputs = ("xodr",)
     optional_inputs = ("source",)
-    version = "2"  # 2: also writes mesh/surface.npz
+    version = "3"  # 2: also writes mesh/surface.npz; 3: curbs around junctions
     description = "road surface, junctions and road marks (and scene solids) as tiled glTF + preview"
 
     def options(self, context: BuildContext) -> dict:
