@@ -86,7 +86,6 @@ print(json.dumps({
     "preview_s": t5 - t_collision, "peak_mib": peak,
     "lane_triangles": int(len(mesh.faces)) - junction, "junction_triangles": junction,
     "mark_triangles": int(len(marks.faces)), "solid_triangles": int(len(scene.mesh().faces)),
-    "junction_curbs": sum(1 for x in scene.solids if x.source.startswith("junction ")),
     "solids": counts, "tiles": len(summary["tiles"]),
     "collision_bodies": world["totals"]["bodies"], "collision_triangles": world["totals"]["triangles"],
     "check_max_m": surface.samples.max_deviation, "discontinuities": surface.samples.discontinuities,
@@ -143,8 +142,8 @@ def report(r: dict, eps: float) -> None:
           f"(C++ mesher at 0.1: {CPP_LANE_TRIANGLES}, ratio {lanes / CPP_LANE_TRIANGLES:.2f}); road marks "
           f"{r['mark_triangles']} (C++: {CPP_MARK_TRIANGLES}, ratio {r['mark_triangles'] / CPP_MARK_TRIANGLES:.2f}); "
           f"fixed 0.5 m step lanes: {r['fixed_step_triangles']} (ratio {lanes / r['fixed_step_triangles']:.2f})")
-    print(f"            scene solids {r['solid_triangles']} ({', '.join(f'{k} {v}' for k, v in r['solids'].items())}; "
-          f"{r['junction_curbs']} of the curbs around junctions); {r['tiles']} glb tiles; collision world "
+    print(f"            scene solids {r['solid_triangles']} ({', '.join(f'{k} {v}' for k, v in r['solids'].items())}); "
+          f"{r['tiles']} glb tiles; collision world "
           f"{r['collision_bodies']} bodies, {r['collision_triangles']} triangles")
     print(f"  deviation mesher check {r['check_max_m']:.4f} m; lane borders every 0.5 m outside "
           f"junctions: max {r['border_max_m']:.4f} m (eps {eps:g}: {r['border_max_m'] / eps:.2f}x); "

@@ -7,16 +7,13 @@ import math
 import manifold3d
 import numpy as np
 import pytest
-import shapely
 import trimesh
 
 from tavf_mapkit.errors import InputError
 from tavf_mapkit.mesh import road_surface
 from tavf_mapkit.mesh.labelled import KIND_CODE
 from tavf_mapkit.mesh.solid_buildings import parse_length, read_footprints, vertical_extent
-from tavf_mapkit.mesh.solid_curbs import CURB_FOUNDATION
-from tavf_mapkit.mesh.solid_junction_curbs import JUNCTION_CURB_HEIGHT
-from tavf_mapkit.mesh.solids import SceneSolids, scene_solid_parts, scene_solids
+from tavf_mapkit.mesh.solids import scene_solid_parts, scene_solids
 from tavf_mapkit.opendrive import load_opendrive
 from tavf_mapkit.xmlsafe import parse_safe, read_xml_source
 from tests.conftest import shared_path
@@ -146,64 +143,10 @@ def test_signals_hang_over_driving_lanes_and_stand_on_poles_beside_them(tavf_dlr
     assert sign.mesh.vertices[:, 2].max() == pytest.approx(1.7 + 0.61, abs=1e-9)
 
 
-def test_town07_has_only_junction_curbs_and_does_not_fail(shared):
+def test_town07_has_no_solids_but_does_not_fail(shared):
     odr = load_opendrive(shared("xodr", "libopendrive", "test.xodr"))
-    surface = road_surface(odr, 0.1)
-    parts = scene_solid_parts(odr, surface)
-    assert parts.solids and all(s.source.startswith("junction ") for s in parts.solids)
-    assert_junction_curbs(odr, surface, parts)
-    assert len(scene_solids(odr, surface).faces) == sum(s.triangles for s in parts.solids)
-
-
-def assert_junction_curbs(odr, surface, parts):
-    """Junction curbs: manifold, 0.15 m above / 0.2 m below the junction border they stand on, outside every
-    lane (no more than a few cm^2 of overlap with driving lanes or junction surfaces), and beside a junction."""
-    curbs = [s for s in parts.solids if s.source.startswith("junction ")]
-    assert curbs
-    assert_all_manifold(SceneSolids(tuple(curbs), ()))
-    junction_faces = surface.select(surface.kind == KIND_CODE["junction"])
-    plan = surface.vertices[surface.faces][:, :, :2]
-    triangles = shapely.polygons(np.concatenate([plan, plan[:, :1]], axis=1))
-    drivable = np.isin(surface.kind, [KIND_CODE["driving"], KIND_CODE["junction"]])
-    lanes = shapely.union_all(triangles[drivable])
-    junction_plan = shapely.union_all(triangles[surface.kind == KIND_CODE["junction"]])
-    border = shapely.MultiPoint(junction_faces.vertices[:, :2])
-    border_z = junction_faces.vertices[:, 2]
-    for solid in curbs:
-        mesh = solid.mesh
-        top = mesh.vertices[mesh.faces]
-        footprint = shapely.union_all(shapely.polygons(np.concatenate([top[:, :, :2], top[:, :1, :2]], axis=1)))
-        assert shapely.area(shapely.intersection(footprint, lanes)) < 5e-4, solid.source
-        assert shapely.distance(footprint, junction_plan) < 2.5e-3, solid.source
-        # every corner has a twin 0.35 m below (top 0.15 m above the border, foundation 0.2 m below it)
-        xy, inverse = np.unique(np.round(mesh.vertices[:, :2], 9), axis=0, return_inverse=True)
-        inverse = inverse.ravel()
-        high = np.full(len(xy), -np.inf)
-        low = np.full(len(xy), np.inf)
-        np.maximum.at(high, inverse, mesh.vertices[:, 2])
-        np.minimum.at(low, inverse, mesh.vertices[:, 2])
-        assert np.allclose(high - low, JUNCTION_CURB_HEIGHT + CURB_FOUNDATION, atol=1e-6), solid.source
-        # the top stands 0.15 m above the nearest junction-border vertex (within the slope over a curb width)
-        nearest = shapely.STRtree(list(border.geoms)).query_nearest(shapely.points(xy))[1]
-        assert np.all(np.abs(high - border_z[nearest] - JUNCTION_CURB_HEIGHT) < 0.05), solid.source
-        assert np.all(mesh.kind == KIND_CODE["curb"])
-
-
-def test_junction_curbs_on_the_open_sides_only(esmini, shared):
-    # esmini's junctions are ringed by sidewalk connecting lanes: no open side, so no junction curb
-    for name in ("multi_intersections.xodr", "fabriksgatan.xodr"):
-        odr, surface = esmini(name)
-        assert not [s for s in scene_solid_parts(odr, surface).solids if s.source.startswith("junction ")]
-
-
-@pytest.mark.slow
-def test_junction_curbs_of_the_real_builds(jungfernstieg_build, tavf_dlr_build):
-    for xodr in (jungfernstieg_build / "jungfernstieg.xodr", tavf_dlr_build / "tavf-dlr.xodr"):
-        odr = load_opendrive(xodr)
-        surface = road_surface(odr, 0.1)
-        parts = scene_solid_parts(odr, surface)
-        assert_junction_curbs(odr, surface, parts)
-        assert not [line for line in parts.skipped if line.startswith("junction ")]
+    mesh = scene_solids(odr, road_surface(odr, 0.1))
+    assert len(mesh.faces) == 0
 
 
 def _osm_buildings(osm_path):

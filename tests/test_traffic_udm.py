@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 from pyproj import Geod
 
+from twin.traffic.buildfiles import build_files
 from twin.traffic.publish import TrafficPublishing, UdmPublisher, perceived_features, udm_id
+from twin.traffic.publish_process import TrafficPublisherProcess
 from twin.traffic.sumo import SumoTraffic, TrafficConfig, sumo_api
 from twin.udm.client import UdmClient
 from twin.udm.server import ServerThread, create_app
@@ -121,6 +123,36 @@ def test_signal_phases_and_departed_vehicles(sample_build_dir, udm_server):
         publisher.close()
     assert {"red", "green"} <= seen_states
     assert departed_checked
+
+
+def test_publisher_process_posts_the_newest_snapshot(sample_build_dir, udm_server):
+    """The child-process publisher: snapshots within the wall interval are held, the newest one wins."""
+    import httpx
+
+    files = build_files(sample_build_dir)
+    bbox = {"bbox": "9.96,53.55,9.99,53.56", "layers": "4"}
+    with SumoTraffic.from_build(sample_build_dir, TrafficConfig(vehicles=8, seed=2)) as traffic, \
+            httpx.Client(base_url=udm_server.url, trust_env=False) as http:
+        publisher = TrafficPublisherProcess(udm_server.url, TOKEN, files.net, files.xodr, traffic.links,
+                                            period_sim_s=0.1, min_interval_s=60.0)
+        for _ in range(400):
+            snapshot = traffic.step()
+            if snapshot.step % 2 == 0:
+                publisher.publish(snapshot)
+        # the first went at once; each later one replaced the one held before it
+        assert publisher.sent == 1 and publisher.held == 198
+        assert publisher.flush(5.0)  # sends the newest held snapshot
+        stats = publisher.stats
+        assert publisher.sent == 2 and stats.batches == 2 and 1 <= stats.posts <= 2 and not stats.errors
+        features = http.get("/objects", params=bbox).json()["features"]
+        centre = snapshot.actors.centre
+        lon, lat = traffic.frame.local_to_wgs84(centre[:, 0], centre[:, 1])
+        where = {udm_id("sumo-vehicle-", a): (lo, la) for a, lo, la in zip(snapshot.actors.ids, lon, lat)}
+        assert {f["id"] for f in features} == set(where) and len(where) > 0
+        for feature in features:
+            assert distance_m(*feature["geometry"]["coordinates"], *where[feature["id"]]) < 0.01
+        publisher.close()
+        assert not publisher.publish(snapshot)  # closed: refused, not raised
 
 
 def test_publisher_survives_an_unreachable_udm():

@@ -8,8 +8,10 @@ UDM (``after_step``). metrics.json gets ``red_light_violations`` and a ``traffic
 
 Options (the drive's option mapping): ``traffic``, ``pedestrians``, ``demand``, ``seed``; publishing needs
 ``udm`` (URL) and a token (``udm_token`` or the ``TWIN_UDM_TOKEN`` variable); ``traffic_publish_hz``
-(default 10), ``traffic_validity_periods`` (3), ``perception_range`` (metres, 0 = off) and
-``perception_noise`` (metres) make the ego a collective-perception data provider.
+(default 10), ``traffic_validity_periods`` (3), ``traffic_publish_min_interval`` (wall seconds between
+batches, default 0 = every batch; with a floor, a twin faster than real time merges batches, newest wins),
+``perception_range`` (metres, 0 = off) and ``perception_noise`` (metres) make the ego a collective-perception
+data provider. Features are built and posted in a child process (``publish_process.py``).
 """
 
 from __future__ import annotations
@@ -46,6 +48,9 @@ class TrafficHook(SessionHook):
         self.validity_periods = float(options.get("traffic_validity_periods") or 3.0)
         self.perception_range = float(options.get("perception_range") or 0.0)
         self.perception_noise = float(options.get("perception_noise") or 0.0)
+        # wall seconds between batches handed to the UDM (default half a publish period; 0 = every batch)
+        interval = options.get("traffic_publish_min_interval")
+        self.publish_min_interval_s = None if interval is None else float(interval)
         self.traffic: SumoTraffic | None = None
         self.snapshot = None  # the latest TrafficSnapshot, for other hooks
         self.seconds = {"sumo": 0.0, "bodies": 0.0, "behaviour": 0.0, "contacts": 0.0, "udm": 0.0, "record": 0.0}
@@ -83,12 +88,13 @@ class TrafficHook(SessionHook):
         self.record_every = max(1, round(RECORD_EVERY_S / self.dt))
         self.ego_radius = 0.5 * math.hypot(MODEL_S.length, MODEL_S.width)
         if self.udm_url and self.udm_token:
-            from twin.traffic.publish import TrafficPublishing, UdmPublisher
+            from twin.traffic.publish_process import TrafficPublisherProcess
 
-            self.publisher = UdmPublisher(self.udm_url, self.udm_token)
-            self.publishing = TrafficPublishing(self.publisher, frame, self.traffic.links,
-                                                period_sim_s=self.publish_every * self.dt,
-                                                validity_periods=self.validity_periods)
+            # features are built and posted in a child process: the loop only pickles the snapshot
+            self.publisher = self.publishing = TrafficPublisherProcess(
+                self.udm_url, self.udm_token, files.net, files.xodr, self.traffic.links,
+                period_sim_s=self.publish_every * self.dt, validity_periods=self.validity_periods,
+                min_interval_s=self.publish_min_interval_s)
             self.perception_rng = session.rng("traffic.perception")
         elif self.udm_url:
             log.warning("traffic is not published to the UDM: no token (--udm-token or TWIN_UDM_TOKEN)")
@@ -178,7 +184,9 @@ class TrafficHook(SessionHook):
                 if self.publisher is not None:
                     published = self.publisher.stats
                     section["udm"] = {"posts": published.posts, "objects": published.objects,
-                                      "errors": dict(published.errors)}
+                                      "errors": dict(published.errors),
+                                      "snapshots_sent": self.publisher.sent, "snapshots_held": self.publisher.held,
+                                      "min_interval_s": self.publisher.min_interval_s}
                 metrics["traffic"] = section
         finally:
             if self.traffic is not None:

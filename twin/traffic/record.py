@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
+
 from twin.recording.schemas import Channel
 
 TRAFFIC = {"title": "twin.Traffic", "type": "object",
@@ -15,13 +17,14 @@ TRAFFIC_CHANNEL = Channel("/traffic", TRAFFIC)
 def traffic_message(snapshot, cap) -> dict[str, Any]:
     actors = snapshot.actors
     centre = actors.centre
+    # rounded and turned into Python numbers column by column (numpy), not value by value
     return {
         "t": snapshot.time, "step": snapshot.step, "ids": list(actors.ids),
-        "person": [bool(v) for v in actors.is_person],
-        "x": [round(float(v), 3) for v in centre[:, 0]], "y": [round(float(v), 3) for v in centre[:, 1]],
-        "z": [round(float(v), 3) for v in centre[:, 2]], "yaw": [round(float(v), 4) for v in actors.yaw],
-        "speed": [round(float(v), 3) for v in actors.speed],
-        "length": [float(v) for v in actors.length], "width": [float(v) for v in actors.width],
+        "person": actors.is_person.tolist(),
+        "x": np.round(centre[:, 0], 3).tolist(), "y": np.round(centre[:, 1], 3).tolist(),
+        "z": np.round(centre[:, 2], 3).tolist(), "yaw": np.round(actors.yaw, 4).tolist(),
+        "speed": np.round(actors.speed, 3).tolist(),
+        "length": actors.length.tolist(), "width": actors.width.tolist(),
         "signals": "".join(snapshot.signal_state.tolist()),
         "ego_cap": {"speed": None if cap.speed == float("inf") else round(cap.speed, 3), "reason": cap.reason,
                     "actor": cap.actor},

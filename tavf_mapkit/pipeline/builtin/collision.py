@@ -15,7 +15,7 @@ DEFAULT_TILE = 100.0
 class CollisionStage(Stage):
     inputs = ("xodr",)
     optional_inputs = ("source", "mesh")
-    version = "3"  # 2: reuses the mesh stage's surface at the same eps; 3: curbs around junctions
+    version = "4"  # 2: reuses the mesh stage's surface at the same eps; 3: curbs around junctions (reverted in 4)
     description = "pybullet collision world: road surface, curbs, objects, signals, buildings (tiled OBJ)"
 
     def options(self, context: BuildContext) -> dict:

@@ -15,7 +15,7 @@ from tavf_mapkit.pipeline.stages import Stage, StageOutput, register_stage
 class MeshStage(Stage):
     inputs = ("xodr",)
     optional_inputs = ("source",)
-    version = "3"  # 2: also writes mesh/surface.npz; 3: curbs around junctions
+    version = "4"  # 2: also writes mesh/surface.npz; 3: curbs around junctions (reverted in 4)
     description = "road surface, junctions and road marks (and scene solids) as tiled glTF + preview"
 
     def options(self, context: BuildContext) -> dict:

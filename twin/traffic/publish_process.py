@@ -1,0 +1,238 @@
+"""Traffic publishing to the UDM from a child process, so the simulation thread only writes to a pipe.
+
+Why a process (the same reason as ``twin/udm/process_client.py``): turning 120 actors into GeoJSON,
+encoding it and POSTing it is Python work that holds the GIL. On a worker thread beside the simulation loop
+it took the GIL from the loop at every socket read, and the loop's own steps (libsumo, pybullet, numpy) got
+2-3x slower (docs/traffic.md, "Benchmark"). Here the loop pickles the step's ``TrafficSnapshot`` (~0.1 ms)
+into a socket pair; the child builds the features with the very same ``TrafficPublishing`` and posts them
+with ``UdmPublisher``.
+
+Rate: by default every snapshot is handed over (10 Hz of simulated time). ``min_interval_s`` sets a floor of
+wall time between hand-overs: a twin at 10x real time otherwise posts 100 batches per wall second, and the
+UDM server and this child together take a core of a two-core machine away from the simulation, for updates
+no real-time consumer can use. A snapshot that comes
+too early is held and replaced by the next one (newest state wins); ``flush`` and ``close`` send what is held.
+
+The child takes the newest snapshot when several are waiting (the twin runs faster than the child posts):
+objects that left SUMO in between are still expired (``TrafficPublishing`` compares with what it last
+published), signal changes are taken against the last state sent, so skipping a snapshot only skips an
+intermediate position -- the same "newest state wins" as the publisher's merging.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import pickle
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections import Counter
+from multiprocessing.connection import Connection
+from pathlib import Path
+from typing import Any, Self
+
+from twin.traffic.publish import PublisherStats
+from twin.traffic.sumo import SignalLinks, TrafficSnapshot
+
+_START_TIMEOUT_S = 30.0
+
+
+class TrafficPublisherProcess:
+    """``publish(snapshot, extra)`` never blocks on the network; ``flush``, ``close`` and ``stats`` as
+    ``UdmPublisher``'s (stats are the child's as of its last report: after ``flush`` or ``close``)."""
+
+    def __init__(self, base_url: str, token: str, net_path: str | Path, xodr_path: str | Path,
+                 links: SignalLinks, *, period_sim_s: float, validity_periods: float = 3.0,
+                 min_interval_s: float | None = None, timeout_s: float = 1.0, source: str = "sumo") -> None:
+        self.base_url = base_url
+        self.stats = PublisherStats()
+        # default 0: every batch of simulated time is posted, so the UDM sees 10 Hz of simulated time however
+        # fast the twin runs; a wall-time floor (e.g. half the period) protects a server that cannot keep up
+        self.min_interval_s = 0.0 if min_interval_s is None else max(0.0, float(min_interval_s))
+        self.sent = 0  # snapshots handed to the child
+        self.held = 0  # snapshots replaced by a newer one before they were handed over
+        self._held: tuple[TrafficSnapshot, list[dict]] | None = None
+        self._last_send = -math.inf
+        parent_socket, child_socket = socket.socketpair()
+        try:
+            # a fresh interpreter, not a fork: the parent runs pybullet and libsumo (see process_client.py)
+            self._process = subprocess.Popen([sys.executable, "-m", "twin.traffic.publish_process",
+                                              str(child_socket.fileno())],
+                                             pass_fds=[child_socket.fileno()], stdin=subprocess.DEVNULL)
+        finally:
+            child_socket.close()
+        self._conn = Connection(parent_socket.detach())
+        self._lock = threading.Lock()
+        self._closed = False
+        settings = {"base_url": base_url, "token": token, "net": str(net_path), "xodr": str(xodr_path),
+                    "period_sim_s": float(period_sim_s), "validity_periods": float(validity_periods),
+                    "timeout_s": float(timeout_s),
+                    "source": source}
+        try:
+            self._conn.send_bytes(json.dumps(settings).encode())
+            self._conn.send_bytes(pickle.dumps(links, protocol=pickle.HIGHEST_PROTOCOL))
+            if not self._conn.poll(_START_TIMEOUT_S):
+                raise EOFError
+            kind, payload = self._conn.recv()
+            if kind != "ready":
+                raise RuntimeError(payload)
+        except (EOFError, OSError, RuntimeError) as error:
+            self._process.kill()
+            self._process.wait()
+            self._conn.close()
+            raise RuntimeError(f"the traffic publisher process did not start: {error}") from None
+
+    def publish(self, snapshot: TrafficSnapshot, extra: list[dict] | None = None) -> bool:
+        """Hand one snapshot (and extra features, e.g. perception) to the child, or hold it if the last one
+        went less than ``min_interval_s`` ago; False if the child is gone."""
+        with self._lock:
+            if self._closed:
+                return False
+            extra = (self._held[1] if self._held is not None else []) + (extra or [])
+            if self._held is not None:
+                self.held += 1
+            self._held = (snapshot, extra)
+            if time.monotonic() - self._last_send < self.min_interval_s:
+                return True
+            return self._send_held()
+
+    def _send_held(self) -> bool:
+        if self._held is None:
+            return True
+        snapshot, extra = self._held
+        self._held = None
+        self._last_send = time.monotonic()
+        try:
+            self._conn.send_bytes(pickle.dumps(("snapshot", snapshot, extra or None),
+                                               protocol=pickle.HIGHEST_PROTOCOL))
+            self.sent += 1
+            return True
+        except (OSError, ValueError):
+            self.stats.errors["publisher_process"] += 1
+            return False
+
+    def flush(self, timeout_s: float = 5.0) -> bool:
+        """Wait until everything published so far (a held snapshot too) was posted; False on timeout."""
+        with self._lock:
+            if self._closed:
+                return False
+            try:
+                self._send_held()
+                self._conn.send_bytes(pickle.dumps(("flush", timeout_s)))
+                return self._wait_for("flushed", timeout_s + 1.0)
+            except (OSError, EOFError, ValueError):
+                return False
+
+    def close(self, timeout_s: float = 5.0) -> None:
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            try:
+                self._send_held()
+                self._conn.send_bytes(pickle.dumps(("close", timeout_s)))
+                self._wait_for("closed", timeout_s + 1.0)
+            except (OSError, EOFError, ValueError):
+                pass
+            self._conn.close()
+        try:
+            self._process.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            self._process.kill()
+            self._process.wait()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    def _wait_for(self, wanted: str, timeout_s: float) -> bool:
+        deadline = time.monotonic() + timeout_s
+        while True:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0 or not self._conn.poll(remaining):
+                return False
+            kind, payload, stats = self._conn.recv()
+            self.stats = _stats_from(stats)
+            if kind == wanted:
+                return bool(payload)
+
+
+def _stats_to(stats: PublisherStats) -> dict[str, Any]:
+    return {"batches": stats.batches, "posts": stats.posts, "objects": stats.objects,
+            "errors": dict(stats.errors), "post_seconds": list(stats.post_seconds), "last_error": stats.last_error}
+
+
+def _stats_from(data: dict[str, Any]) -> PublisherStats:
+    return PublisherStats(data["batches"], data["posts"], data["objects"], Counter(data["errors"]),
+                          data["post_seconds"], data["last_error"])
+
+
+def _child_main(conn: Connection) -> None:
+    """Read snapshots, publish the newest of those waiting, answer flush and close."""
+    from twin.traffic.frames import NetFrame
+    from twin.traffic.publish import TrafficPublishing, UdmPublisher
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle; it closes us
+    settings = json.loads(conn.recv_bytes())
+    links = pickle.loads(conn.recv_bytes())
+    try:
+        frame = NetFrame.from_files(settings["net"], settings["xodr"])
+        publisher = UdmPublisher(settings["base_url"], settings["token"], timeout_s=settings["timeout_s"])
+    except Exception as error:  # noqa: BLE001 -- reported to the parent, which raises it
+        conn.send(("error", f"{type(error).__name__}: {error}"))
+        return
+    publishing = TrafficPublishing(publisher, frame, links, period_sim_s=settings["period_sim_s"],
+                                   validity_periods=settings["validity_periods"], source=settings["source"])
+    conn.send(("ready", None))
+
+    def send(kind: str, payload: Any) -> None:
+        with publisher._lock:
+            stats = _stats_to(publisher.stats)
+        conn.send((kind, payload, stats))
+
+    closing = None
+    try:
+        while closing is None:
+            newest: TrafficSnapshot | None = None
+            extra: list[dict] = []
+            flush = None
+            try:
+                message = pickle.loads(conn.recv_bytes())  # block until there is something to do
+                while True:
+                    kind = message[0]
+                    if kind == "snapshot":
+                        newest = message[1]
+                        extra += message[2] or []
+                    elif kind == "flush":
+                        flush = float(message[1])
+                    elif kind == "close":
+                        closing = float(message[1])
+                        break
+                    if not conn.poll(0):
+                        break
+                    message = pickle.loads(conn.recv_bytes())
+            except (EOFError, OSError):
+                closing = 1.0  # the parent is gone: post what is queued, briefly, and stop
+            if newest is not None:
+                publishing.publish(newest, extra)
+            elif extra:
+                publisher.publish(extra)
+            if flush is not None:
+                send("flushed", publisher.flush(flush))
+    finally:
+        publisher.close(closing or 1.0)
+        try:
+            send("closed", True)
+        except (OSError, ValueError):
+            pass
+        conn.close()
+
+
+if __name__ == "__main__":
+    _child_main(Connection(int(sys.argv[1])))
