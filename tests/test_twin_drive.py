@@ -82,6 +82,19 @@ def test_same_seed_gives_byte_identical_trajectories(sample_build_dir, tmp_path)
     assert outputs[0] != outputs[2]
 
 
+def test_pacing_holds_the_drive_to_its_rate_and_changes_nothing_else(sample_build_dir, tmp_path):
+    """--pace 10: 3 simulated seconds take at least 0.3 s of wall time; the trajectory is the unpaced one."""
+    outputs = []
+    for name, pace in (("free", ()), ("paced", ("--pace", 10))):
+        result = drive("--map", sample_build_dir, "--random", "--duration", 3, "--seed", 4, *pace,
+                       "--out", tmp_path / name, "--no-record", "--no-plot")
+        assert result.exit_code == 0, result.output
+        outputs.append((tmp_path / name / "trajectory.csv").read_bytes())
+    metrics = json.loads((tmp_path / "paced" / "metrics.json").read_text())
+    assert metrics["real_time_factor"] <= 10.0 + 1e-6  # sleeping can only slow it down to the pace, never below
+    assert outputs[0] == outputs[1]
+
+
 class Probe(SessionHook):
     name = "probe"
 

@@ -46,6 +46,9 @@ def _bias(value: str | None) -> tuple[float, float, float]:
                                       "K_D 0.2).")
 @click.option("--dt", type=click.FloatRange(min=0.001, max=0.5), default=0.05, show_default=True,
               help="Fixed step in seconds.")
+@click.option("--pace", type=click.FloatRange(min=0.01), default=None,
+              help="Run at most this many times real time (1 = real time, e.g. with a real UDM or hardware in "
+                   "the loop). Default: as fast as the machine allows. Results do not depend on it.")
 @click.option("--vehicles", type=click.IntRange(min=1), default=1, show_default=True,
               help="Twin-driven cars on random routes, the ego included (not SUMO traffic: see --traffic).")
 @click.option("--gnss-rate", type=click.FloatRange(min=0, min_open=True), default=10.0, show_default=True,
@@ -77,7 +80,7 @@ def _bias(value: str | None) -> tuple[float, float, float]:
 @click.option("--format", "output_format", type=click.Choice(["text", "json"]), default="text", show_default=True,
               help="How to print the metrics.")
 @click.option("-v", "--verbose", count=True, help="Log more (-v info, -vv debug).")
-def drive(map_dir, route, route_mode, random_route, duration, seed, speed_kmh, controller, dt, vehicles, gnss_rate, gnss_noise,
+def drive(map_dir, route, route_mode, random_route, duration, seed, speed_kmh, controller, dt, pace, vehicles, gnss_rate, gnss_noise,
           gnss_bias, lidar, camera, gui, out_dir, no_plot, udm, udm_every, udm_bbox, record, traffic, pedestrians,
           demand, output_format, verbose) -> None:
     """Drive a simulated Tesla Model S through a build and write what happened.
@@ -106,7 +109,7 @@ def drive(map_dir, route, route_mode, random_route, duration, seed, speed_kmh, c
     config = DriveConfig(map=map_dir, out=out_dir, route=route, route_mode=route_mode, random=random_route, duration=duration, seed=seed,
                          speed_kmh=speed_kmh, dt=dt, controller=controller, vehicles=vehicles, gnss_rate=gnss_rate,
                          gnss_noise=gnss_noise, gnss_bias=_bias(gnss_bias), lidar=lidar, camera=camera, gui=gui,
-                         plot=not no_plot, plugins=plugins)
+                         plot=not no_plot, pace=pace, plugins=plugins)
     hooks = create_hooks(config.as_dict())
     metrics = Session(config, hooks).run()
     if output_format == "json":

@@ -158,10 +158,13 @@ def bench_load(url: str, vehicles: int, rate: float, duration: float, lat: float
 @click.option("--client", type=click.Choice(["process", "thread"]), default="process", show_default=True,
               help="How the twin runs its UDM client: a child process (the default) or a thread beside the "
                    "simulation (to see what the GIL costs).")
+@click.option("--pace", type=click.FloatRange(min=0.01), default=None,
+              help="Run the twin at most this many times real time (1 = real time, how a UDM is tested with a "
+                   "car in the loop). Default: as fast as it can.")
 @click.option("--allow-remote", is_flag=True,
               help="Permit a URL that is not loopback. Only benchmark a server you may load.")
 def bench(map_dir: Path, url: str, requests: int, every: int, side: float, seed: int, timeout: float,
-          client: str, allow_remote: bool) -> None:
+          client: str, pace: float | None, allow_remote: bool) -> None:
     """Compare UDM latency from inside a running twin with the same requests sent standalone (JSON).
 
     \b
@@ -182,5 +185,5 @@ def bench(map_dir: Path, url: str, requests: int, every: int, side: float, seed:
     if not is_loopback_url(url) and not allow_remote:
         raise InputError(f"--url {url!r} is not a loopback address; pass --allow-remote if you may load it")
     result = run_bench(map_dir, url, requests, every=every, side_m=side, seed=seed, timeout_s=timeout,
-                       client=client)
+                       client=client, pace=pace)
     click.echo(json.dumps(result, indent=2))

@@ -133,6 +133,7 @@ def drive_config_from(recording: Recording, map_dir: Path | None = None, out_dir
         values["gnss_bias"] = tuple(values["gnss_bias"])
     values["gui"] = False
     values["plot"] = False
+    values["pace"] = None  # re-simulate as fast as possible; pacing never changes the states
     plugins["record"] = True  # the re-simulation's own recording is what gets compared
     if plugins.get("udm"):
         plugins["udm_replay"] = str(recording.path)  # recorded answers at their steps, no server

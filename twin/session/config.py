@@ -32,6 +32,7 @@ class DriveConfig:
     camera_rate: float = 5.0
     gui: bool = False
     plot: bool = True
+    pace: float | None = None  # at most this many times real time (1 = real time); None = as fast as it can
     plugins: dict[str, Any] = field(default_factory=dict)  # hook options: udm, record, traffic, ...
 
     @property

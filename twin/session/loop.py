@@ -258,6 +258,11 @@ class Session:
                     self._call_hooks("after_step", frame)
                 if self.route is not None and step > 0 and self._route_done():
                     break
+                if config.pace:
+                    # sleeping only changes when a step happens, never what it computes: runs stay identical
+                    ahead = loop_start + t / config.pace - time.perf_counter()
+                    if ahead > 0:
+                        time.sleep(ahead)
             wall = time.perf_counter() - loop_start
             metrics = self._metrics(recorder, wall, self.setup_seconds + (loop_start - wall_start))
             failed = False

@@ -39,7 +39,7 @@ class PlannedQuery:
 
 def run_in_twin(map_dir: Path, url: str, requests: int, *, every: int = 10, side_m: float = 200.0,
                 seed: int = 0, dt: float = 0.05, timeout_s: float = 1.0,
-                client: str = "process") -> tuple[list[Answer], dict[str, Any]]:
+                client: str = "process", pace: float | None = None) -> tuple[list[Answer], dict[str, Any]]:
     """A real drive with the UDM hook until ``requests`` queries were made; its answers and its metrics."""
     from twin.session.config import DriveConfig
     from twin.session.loop import Session
@@ -50,7 +50,7 @@ def run_in_twin(map_dir: Path, url: str, requests: int, *, every: int = 10, side
         plugins = {"udm": url, "udm_every": every, "udm_bbox": side_m, "udm_timeout": timeout_s, "record": True,
                    "udm_client": client}
         config = DriveConfig(map=Path(map_dir), out=Path(scratch) / "drive", random=True, duration=steps * dt,
-                             seed=seed, dt=dt, plot=False, plugins=plugins)
+                             seed=seed, dt=dt, plot=False, pace=pace, plugins=plugins)
         hooks = create_hooks(config.as_dict())
         udm = next(hook for hook in hooks if isinstance(hook, UdmHook))
         metrics = Session(config, hooks).run()
@@ -115,14 +115,15 @@ def compare(answers: Sequence[Answer], standalone: Sequence[UdmResponse]) -> dic
 
 
 def run_bench(map_dir: Path, url: str, requests: int = 200, *, every: int = 10, side_m: float = 200.0,
-              seed: int = 0, timeout_s: float = 1.0, client: str = "process") -> dict[str, Any]:
+              seed: int = 0, timeout_s: float = 1.0, client: str = "process",
+              pace: float | None = None) -> dict[str, Any]:
     """The in-twin run, then the standalone run of the same pattern; the comparison as a JSON-able dict."""
     answers, metrics = run_in_twin(map_dir, url, requests, every=every, side_m=side_m, seed=seed,
-                                   timeout_s=timeout_s, client=client)
+                                   timeout_s=timeout_s, client=client, pace=pace)
     plan = plan_from(answers)
     standalone = run_standalone(url, plan, side_m=side_m, timeout_s=timeout_s)
     result = {"map": str(map_dir), "url": url, "requests": requests, "every": every, "bbox_m": side_m,
-              "client": client, **compare(answers, standalone)}
+              "client": client, "pace": pace, **compare(answers, standalone)}
     udm = metrics.get("udm", {})
     result["twin"] = {"real_time_factor": metrics.get("real_time_factor"),
                       "sim_seconds": metrics.get("sim_seconds"), "queries": udm.get("queries"),
