@@ -144,6 +144,17 @@ def test_a_curb_stops_the_car_and_is_logged(client):
     assert fleet.counters.resets[0] == 1
 
 
+def test_a_car_reset_after_a_hit_goes_on_past_the_obstacle(client):
+    """A wall across the path is hit once; the reset puts the car beyond it, not back in front of it forever."""
+    cid, _ = client
+    wall = _box(cid, [50.0, 0.0, 1.5], [0.2, 5.0, 1.5])
+    fleet = _straight_fleet(cid, solids=frozenset({wall}))
+    for step in range(1, 400):
+        fleet.step(step * DT)
+    assert [c.kind for c in fleet.counters.collisions] == ["solid"]
+    assert fleet.counters.resets[0] == 1 and fleet.state.x[0] > 60.0
+
+
 def test_a_wall_is_a_solid_collision(client):
     cid, _ = client
     wall = _box(cid, [50.0, 0.0, 1.5], [0.2, 5.0, 1.5])

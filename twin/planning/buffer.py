@@ -157,6 +157,14 @@ class PathBuffer:
         self.vmax[i, start:stop] = np.minimum(self.vmax[i, start:stop], limit)
 
     # ------------------------------------------------------------------ queries
+    def skip(self, mask: np.ndarray, distance: float) -> None:
+        """Move the masked paths' position ``distance`` metres ahead: past an obstacle standing on the path."""
+        for i in np.flatnonzero(mask):  # only the vehicles that just hit something
+            self.refill(i)
+            n = int(self.count[i])
+            target = self.s[i, self.base[i]] + distance
+            self.base[i] = min(int(np.searchsorted(self.s[i, :n], target)), max(n - 2, 0))
+
     def _gather(self, array: np.ndarray, index: np.ndarray) -> np.ndarray:
         return array[self._rows[:, None], index]
 

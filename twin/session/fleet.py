@@ -3,7 +3,7 @@
 Each ``step`` controls, moves and grounds every vehicle at once, then applies the rules of the road the
 simulation enforces: a wheel that jumps up a curb or a box that touches a static solid (curb, building,
 object) stops the car and is logged as a collision; a stopped-by-collision, lost (more than ``lost_m`` off
-its path) or stuck car is reset onto its path and counted.
+its path) or stuck car is reset onto its path and counted; after a collision it is reset past the obstacle.
 """
 
 from __future__ import annotations
@@ -16,6 +16,8 @@ from twin.planning.buffer import PathBuffer
 from twin.planning.local_planner import ControlOutput, LocalPlanner
 from twin.vehicle.body import CURB_STEP, Ground, VehicleBodies
 from twin.vehicle.dynamics import BicycleModel, BicycleState, stopped
+
+OBSTACLE_SKIP_M = 8.0  # a car that hit something on its path is reset this far ahead (> a car length)
 
 
 @dataclass(frozen=True)
@@ -112,6 +114,8 @@ class Fleet:
         lost = np.abs(control.projection.lateral) > self.lost_m
         reset = hit | lost | (counters.stuck_seconds > self.stuck_s)
         if np.any(reset):
+            # an obstacle on the path would stop a car put back at the same spot again, step after step
+            self.buffer.skip(hit, OBSTACLE_SKIP_M)
             counters.resets += reset
             counters.stuck_seconds = np.where(reset, 0.0, counters.stuck_seconds)
             self.place_on_paths(reset)
