@@ -25,8 +25,6 @@ import json
 import math
 import pickle
 import signal
-import socket
-import subprocess
 import sys
 import threading
 import time
@@ -35,6 +33,7 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any, Self
 
+from twin.childproc import spawn_child, stop_child
 from twin.traffic.publish import PublisherStats
 from twin.traffic.sumo import SignalLinks, TrafficSnapshot
 
@@ -57,15 +56,7 @@ class TrafficPublisherProcess:
         self.held = 0  # snapshots replaced by a newer one before they were handed over
         self._held: tuple[TrafficSnapshot, list[dict]] | None = None
         self._last_send = -math.inf
-        parent_socket, child_socket = socket.socketpair()
-        try:
-            # a fresh interpreter, not a fork: the parent runs pybullet and libsumo (see process_client.py)
-            self._process = subprocess.Popen([sys.executable, "-m", "twin.traffic.publish_process",
-                                              str(child_socket.fileno())],
-                                             pass_fds=[child_socket.fileno()], stdin=subprocess.DEVNULL)
-        finally:
-            child_socket.close()
-        self._conn = Connection(parent_socket.detach())
+        self._process, self._conn = spawn_child("twin.traffic.publish_process")
         self._lock = threading.Lock()
         self._closed = False
         settings = {"base_url": base_url, "token": token, "net": str(net_path), "xodr": str(xodr_path),
@@ -139,11 +130,7 @@ class TrafficPublisherProcess:
             except (OSError, EOFError, ValueError):
                 pass
             self._conn.close()
-        try:
-            self._process.wait(timeout_s)
-        except subprocess.TimeoutExpired:
-            self._process.kill()
-            self._process.wait()
+        stop_child(self._process, timeout_s)
 
     def __enter__(self) -> Self:
         return self

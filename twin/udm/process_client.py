@@ -16,8 +16,6 @@ from __future__ import annotations
 import json
 import math
 import signal
-import socket
-import subprocess
 import sys
 import threading
 import time
@@ -25,6 +23,7 @@ from collections import deque
 from multiprocessing.connection import Connection
 from typing import Any, Self
 
+from twin.childproc import spawn_child, stop_child
 from twin.udm.client import INTERNAL, INVALID_FIX, ClientStats, UdmClient, UdmQuery, UdmResponse
 
 _START_TIMEOUT_S = 30.0
@@ -35,19 +34,7 @@ class UdmProcessClient:
 
     def __init__(self, base_url: str = "http://127.0.0.1:8765", **client_options: Any) -> None:
         self.base_url = base_url
-        # A fresh interpreter (python -m this module), not a fork: the parent may run pybullet and threads,
-        # which a forked child must not inherit, and multiprocessing's spawn would re-import the caller's
-        # __main__ script. A socket pair carries pickled messages both ways.
-        parent_socket, child_socket = socket.socketpair()
-        try:
-            self._process = subprocess.Popen(
-                [sys.executable, "-m", "twin.udm.process_client", str(child_socket.fileno()), base_url,
-                 json.dumps(client_options)],
-                pass_fds=[child_socket.fileno()], stdin=subprocess.DEVNULL,
-            )
-        finally:
-            child_socket.close()
-        self._conn = Connection(parent_socket.detach())
+        self._process, self._conn = spawn_child("twin.udm.process_client", base_url, json.dumps(client_options))
         self._stats = ClientStats()
         self._local: list[UdmResponse] = []  # answers made here (invalid fix, broken pipe) or read during flush
         self._local_errors: dict[str, int] = {}
@@ -138,11 +125,7 @@ class UdmProcessClient:
             except (OSError, EOFError, ValueError):
                 pass
             self._conn.close()
-        try:
-            self._process.wait(timeout_s)
-        except subprocess.TimeoutExpired:
-            self._process.kill()
-            self._process.wait()
+        stop_child(self._process, timeout_s)
 
     def __enter__(self) -> Self:
         return self
