@@ -148,6 +148,18 @@ def _one_line_error(result, *needles):
         assert needle in lines[0]
 
 
+def test_a_plug_in_given_bad_input_stops_the_drive_with_one_line(sample_build_dir, tmp_path):
+    """--traffic on a build without its SUMO network: the user asked for traffic, so no silent drive without."""
+    import shutil
+
+    build = tmp_path / "sample"
+    shutil.copytree(sample_build_dir, build)
+    (build / "sample.net.xml").unlink()
+    result = drive("--map", build, "--random", "--duration", 2, "--traffic", 3, "--out", tmp_path / "o")
+    _one_line_error(result, "sample.net.xml")
+    assert not (tmp_path / "o").exists()
+
+
 def test_bad_input_is_one_line_and_exit_2(sample_build_dir, tmp_path):
     _one_line_error(drive("--map", tmp_path, "--random", "--out", tmp_path / "o"), "not a build folder")
     _one_line_error(drive("--map", tmp_path / "missing", "--random", "--out", tmp_path / "o"), "not a build")

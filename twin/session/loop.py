@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from tavf_mapkit.errors import InputError
+from tavf_mapkit.errors import InputError, MapkitError
 from twin.session.config import DriveConfig
 from twin.session.hooks import EgoPose, Frame, SessionHook
 
@@ -188,13 +188,20 @@ class Session:
         for hook in list(self.hooks):
             try:
                 results.append(getattr(hook, method)(self, *args))
+            except MapkitError as error:
+                if method == "start":  # the user asked for this plug-in and gave it bad input: say so, stop
+                    raise
+                self._disable_hook(hook, method, error)
             except Exception as error:  # noqa: BLE001 -- a plug-in must not take the drive down, nor fail silently
-                name = getattr(hook, "name", type(hook).__name__)
-                log.error("hook %s failed in %s at step %d and is disabled: %s: %s", name, method, self.step_index,
-                          type(error).__name__, error)
-                self.hook_errors.append(f"{name}.{method} at step {self.step_index}: {type(error).__name__}: {error}")
-                self.hooks.remove(hook)
+                self._disable_hook(hook, method, error)
         return results
+
+    def _disable_hook(self, hook, method: str, error: BaseException) -> None:
+        name = getattr(hook, "name", type(hook).__name__)
+        log.error("hook %s failed in %s at step %d and is disabled: %s: %s", name, method, self.step_index,
+                  type(error).__name__, error)
+        self.hook_errors.append(f"{name}.{method} at step {self.step_index}: {type(error).__name__}: {error}")
+        self.hooks.remove(hook)
 
     def _speed_cap(self, t: float) -> np.ndarray | None:
         """The ego's target-speed cap from the hooks, None without hooks or when no hook lowers it.
