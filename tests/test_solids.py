@@ -143,10 +143,13 @@ def test_signals_hang_over_driving_lanes_and_stand_on_poles_beside_them(tavf_dlr
     assert sign.mesh.vertices[:, 2].max() == pytest.approx(1.7 + 0.61, abs=1e-9)
 
 
-def test_town07_has_no_solids_but_does_not_fail(shared):
+def test_town07_has_only_junction_curbs_and_does_not_fail(shared):
     odr = load_opendrive(shared("xodr", "libopendrive", "test.xodr"))
-    mesh = scene_solids(odr, road_surface(odr, 0.1))
-    assert len(mesh.faces) == 0
+    surface = road_surface(odr, 0.1)
+    parts = scene_solid_parts(odr, surface)
+    assert parts.solids and all(s.source.startswith("junction ") for s in parts.solids)
+    assert_all_manifold(parts)
+    assert len(scene_solids(odr, surface).faces) == sum(s.triangles for s in parts.solids)
 
 
 def _osm_buildings(osm_path):

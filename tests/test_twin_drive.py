@@ -194,6 +194,19 @@ def test_half_an_hour_of_random_routes_without_reset_or_off_road(sample_build_di
 
 
 @pytest.mark.slow
+def test_half_an_hour_on_the_tavf_build_never_meets_a_junction_curb(tavf_dlr_build, tmp_path):
+    # netconvert's TAVF junctions have right turns tighter than the car turns; their curbs must leave room
+    world = json.loads((tavf_dlr_build / "collision" / "world.json").read_text())
+    assert world["solids"]["curb"] > 300  # the junction curbs are there
+    result = drive("--map", tavf_dlr_build, "--random", "--duration", 1800, "--seed", 0, "--out", tmp_path / "o",
+                   "--no-record", "--no-plot", "--format", "json")
+    assert result.exit_code == 0, result.output
+    metrics = json.loads(result.output)
+    assert metrics["distance_m"] > 10_000
+    assert metrics["resets"] == 0 and metrics["collisions"] == 0 and metrics["off_road_seconds"] == 0.0
+
+
+@pytest.mark.slow
 def test_replaying_the_shared_ride_lands_on_the_recording(tavf_dlr_build, tmp_path):
     ride = shared_path("hamburg", "gnss_ride_b4", "thomas.json")
     result = drive("--map", tavf_dlr_build, "--route", ride, "--out", tmp_path / "o", "--no-record", "--no-plot",

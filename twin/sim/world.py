@@ -16,9 +16,9 @@ from twin.sim.build import Build
 
 log = logging.getLogger(__name__)
 
-# body groups of the collision world that stop a car when its box touches them (the others are surfaces:
-# road, roadside)
-SOLID_GROUPS = frozenset({"curb", "object", "signal", "building"})
+# body groups of the collision world that stop a car when its box touches them. The others are surfaces
+# (road, roadside) and curbs: a body overhangs a curb as high as its ground clearance, the wheels find curbs.
+SOLID_GROUPS = frozenset({"object", "signal", "building"})
 
 
 class SimWorld:

@@ -15,7 +15,8 @@ DEFAULT_TILE = 100.0
 class CollisionStage(Stage):
     inputs = ("xodr",)
     optional_inputs = ("source", "mesh")
-    version = "4"  # 2: reuses the mesh stage's surface at the same eps; 3: curbs around junctions (reverted in 4)
+    version = "5"  # 2: reuses the mesh stage's surface at the same eps; 3: curbs around junctions (reverted in 4);
+    # 5: junction curbs along the connecting lanes' sides, clear of the swept path of a car on each driving lane
     description = "pybullet collision world: road surface, curbs, objects, signals, buildings (tiled OBJ)"
 
     def options(self, context: BuildContext) -> dict:

@@ -15,7 +15,8 @@ from tavf_mapkit.pipeline.stages import Stage, StageOutput, register_stage
 class MeshStage(Stage):
     inputs = ("xodr",)
     optional_inputs = ("source",)
-    version = "4"  # 2: also writes mesh/surface.npz; 3: curbs around junctions (reverted in 4)
+    version = "5"  # 2: also writes mesh/surface.npz; 3: curbs around junctions (reverted in 4); 5: junction curbs
+    # along the connecting lanes' sides, clear of the swept path of a car following each driving lane
     description = "road surface, junctions and road marks (and scene solids) as tiled glTF + preview"
 
     def options(self, context: BuildContext) -> dict:

@@ -1,0 +1,131 @@
+"""Where a car following a lane's centre line sweeps: the plan-view area a curb must leave free.
+
+A car turning on a circle of radius R (its rear axle's midpoint on the lane centre line) sweeps beyond its
+half width: the front overhangs outwards and, if the front axle follows the line instead, the rear wheels
+cut inwards -- by about R - sqrt(R^2 - L^2) for a wheelbase L either way (the "curve widening" of road
+design). netconvert draws junction corners around its connecting lanes' own shapes, often tighter than a
+car turns, so a curb on such a corner would stand in the way of every car using the lane. The swept area of
+a piece of centre line (PIECE samples) reaches DESIGN_HALF_WIDTH + that widening (at its sharpest point) +
+MARGIN to both sides (inner and outer side of a turn swap with the direction of travel; one width keeps it
+simple).
+"""
+
+from __future__ import annotations
+
+import manifold3d
+import numpy as np
+import shapely
+
+from tavf_mapkit.mesh.kinds import LANE_TYPE_KIND
+from tavf_mapkit.opendrive.sampling import sample_lanes_at, section_samples
+
+DESIGN_HALF_WIDTH = 1.0   # m: half the width of a large passenger car (design vehicle, mirrors folded)
+DESIGN_WHEELBASE = 3.0    # m: its wheelbase (a Tesla Model S has 2.96 m)
+MARGIN = 0.25             # m: how far a driver stays off a curb
+STEP = 0.5                # m of s between centre-line samples
+PIECE = 10                # samples per piece of centre line that gets one swept width
+QUAD_SEGMENTS = 2         # segments per quarter circle of the round ends (coarse: it is a clearance)
+
+
+def swept_width(curvature: np.ndarray) -> np.ndarray:
+    """Half width of the swept path at a plan-view curvature (1/m): half width + curve widening + margin."""
+    radius = 1.0 / np.maximum(np.abs(curvature), 1e-9)
+    wheelbase = DESIGN_WHEELBASE
+    # no car follows a circle smaller than its wheelbase: the widening stops growing there
+    widening = np.where(radius > wheelbase, radius - np.sqrt(np.maximum(radius**2 - wheelbase**2, 0.0)), wheelbase)
+    return DESIGN_HALF_WIDTH + widening + MARGIN
+
+
+def wheelbase_curvature(lane: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Curvature (1/m, unsigned) at every point of polylines (runs of consecutive points with the same
+    ``lane``): the heading change over one DESIGN_WHEELBASE of arc length centred on the point (cut at the
+    run's ends), over that length. A car smooths a kink over its own length, so a kink counts by its angle
+    over a wheelbase, not as the infinite curvature of a corner."""
+    n = len(points)
+    step = np.hypot(*np.diff(points, axis=0).T) if n > 1 else np.zeros(0)
+    # a repeated point has no heading: it takes the curvature of the point before
+    repeat = np.r_[False, (lane[1:] == lane[:-1]) & (step <= 1e-9)]
+    keep = np.flatnonzero(~repeat)
+    lane, points = lane[keep], points[keep]
+    curvature = np.zeros(len(points))
+    same = lane[1:] == lane[:-1]
+    if np.any(same):
+        along = points[1:] - points[:-1]
+        length = np.where(same, np.hypot(along[:, 0], along[:, 1]), 0.0)
+        heading = np.arctan2(along[:, 1], along[:, 0])
+        # heading made continuous inside each run (turns across run boundaries are left out)
+        turn = np.where(same[1:] & same[:-1], (heading[1:] - heading[:-1] + np.pi) % (2 * np.pi) - np.pi, 0.0)
+        unwrapped = np.r_[0.0, np.cumsum(turn)]
+        arc = np.r_[0.0, np.cumsum(length)]  # runs follow each other without a gap
+        run = np.cumsum(np.r_[True, ~same]) - 1
+        segment = np.flatnonzero(same)
+        middle = 0.5 * (arc[segment] + arc[segment + 1])
+        runs, first = np.unique(run[segment], return_index=True)
+        last = np.r_[first[1:], len(segment)] - 1
+        lo, hi = np.full(run[-1] + 1, np.nan), np.full(run[-1] + 1, np.nan)
+        lo[runs], hi[runs] = middle[first], middle[last]
+        start, end = np.full(run[-1] + 1, np.nan), np.full(run[-1] + 1, np.nan)
+        start[runs], end[runs] = arc[segment[first]], arc[segment[last] + 1]
+        half = 0.5 * DESIGN_WHEELBASE
+        has = np.isfinite(lo[run])
+        r = run[has]
+        # headings are read between the run's first and last segment middles, so runs never mix
+        back = np.clip(arc[has] - half, lo[r], hi[r])
+        ahead = np.clip(arc[has] + half, lo[r], hi[r])
+        change = np.abs(np.interp(ahead, middle, unwrapped[segment]) - np.interp(back, middle, unwrapped[segment]))
+        span = np.minimum(arc[has] + half, end[r]) - np.maximum(arc[has] - half, start[r])
+        curvature[has] = np.where(span > 1e-9, change / np.maximum(span, 1e-9), 0.0)
+    return curvature[np.cumsum(~repeat) - 1]
+
+
+def swept_section(odr, near: np.ndarray, anchor: np.ndarray) -> manifold3d.CrossSection:
+    """The swept paths of every driving lane that comes within reach of the shapely geometries ``near``, as
+    one manifold3d CrossSection in local x, y minus ``anchor`` (empty when none comes near)."""
+    lines, width = _centre_pieces(odr)
+    if not len(lines) or not len(near):
+        return manifold3d.CrossSection()
+    _, hit = shapely.STRtree(lines).query(near, predicate="dwithin", distance=float(width.max()))
+    hit = np.unique(hit)
+    if not len(hit):
+        return manifold3d.CrossSection()
+    # round ends and joints are polygons with QUAD_SEGMENTS sides per quarter: widen them so they circumscribe
+    circumscribe = 1.0 / np.cos(np.pi / (4 * QUAD_SEGMENTS))
+    areas = shapely.orient_polygons(shapely.buffer(lines[hit], width[hit] * circumscribe, quad_segs=QUAD_SEGMENTS))
+    rings = shapely.get_exterior_ring(shapely.get_parts(areas))  # a buffer of a line has no holes
+    coordinates, ring = shapely.get_coordinates(rings, return_index=True)
+    cuts = np.flatnonzero(np.diff(ring)) + 1
+    return manifold3d.CrossSection([part[:-1] - anchor for part in np.split(coordinates, cuts)],
+                                   manifold3d.FillRule.Positive)
+
+
+def _centre_pieces(odr) -> tuple[np.ndarray, np.ndarray]:
+    """Every driving lane's centre line in pieces of PIECE samples (shapely LineStrings, plan view) and the
+    swept half width of each piece (at its sharpest point)."""
+    arrays = odr.arrays
+    kinds = np.array([LANE_TYPE_KIND.get(str(t).lower(), "other") for t in arrays.lane_type], dtype=object)
+    sections = np.unique(arrays.lane_section[kinds == "driving"])
+    if not len(sections):
+        return np.zeros(0, dtype=object), np.zeros(0)
+    sampling = sample_lanes_at(odr, *section_samples(arrays, STEP, True, sections))
+    keep = kinds[sampling.pair_lane] == "driving"
+    lane = sampling.pair_lane[keep]
+    centre = sampling.center_points(with_height=False)[keep, :2]
+    curvature = wheelbase_curvature(lane, centre)
+    same = lane[1:] == lane[:-1]
+    # pieces: PIECE samples each, the first sample of the next piece repeated so that pieces join
+    run_start = np.flatnonzero(np.r_[True, ~same])
+    index_in_run = np.arange(len(lane)) - np.repeat(run_start, np.diff(np.r_[run_start, len(lane)]))
+    piece = np.cumsum(np.r_[True, ~same] | ((index_in_run % PIECE == 0) & (index_in_run > 0))) - 1
+    joint = np.flatnonzero((index_in_run % PIECE == 0) & (index_in_run > 0))
+    point = np.concatenate([np.arange(len(lane)), joint])
+    owner = np.concatenate([piece, piece[joint] - 1])
+    order = np.lexsort((point, owner))
+    point, owner = point[order], owner[order]
+    counts = np.bincount(owner)
+    usable = counts[owner] >= 2
+    point, owner = point[usable], owner[usable]
+    _, owner = np.unique(owner, return_inverse=True)
+    lines = shapely.linestrings(centre[point], indices=owner)
+    width = np.zeros(owner.max(initial=-1) + 1)
+    np.maximum.at(width, owner, swept_width(curvature[point]))
+    return lines, width
