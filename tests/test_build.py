@@ -101,7 +101,7 @@ def test_sample_build_has_the_documented_layout(sample_build):
     name = sample_build.name
     for relative in (f"{name}.xodr", f"{name}.net.xml", f"source/{name}.osm", "report/summary.json",
                      "report/summary.txt", "logs/netconvert.log", "manifest.json", "mesh/mesh.json",
-                     "mesh/surface.npz", "report/mesh_preview.png", "collision/world.json"):
+                     "mesh/surface.npz", "mesh/solids.npz", "report/mesh_preview.png", "collision/world.json"):
         assert (sample_build / relative).is_file(), relative
     assert not leftovers(sample_build.parent)
 
@@ -453,3 +453,21 @@ def test_atomic_writes_get_the_usual_file_mode(tmp_path):
     finally:
         os.umask(old)
     assert target.stat().st_mode & 0o777 == 0o644
+
+
+def test_collision_stage_reuses_the_mesh_stage_solids_exactly(sample_build, tmp_path):
+    # the collision stage read mesh/surface.npz and mesh/solids.npz; made from scratch, the world is the same
+    from tavf_mapkit.opendrive import load_opendrive
+    from tavf_mapkit.world import build_collision_world
+
+    name = sample_build.name
+    collision = next(record for record in manifest(sample_build)["stages"] if record["name"] == "collision")
+    assert collision["facts"]["reused"] == ["surface", "solids"]
+    origin = json.loads((sample_build / "mesh" / "mesh.json").read_text())["origin"]
+    fresh = build_collision_world(load_opendrive(sample_build / f"{name}.xodr"), tmp_path, eps=0.05,
+                                  osm_path=sample_build / "source" / f"{name}.osm", tile=100.0,
+                                  origin=[origin["x"], origin["y"], origin["z"]])
+    assert fresh == json.loads((sample_build / "collision" / "world.json").read_text())
+    assert fresh["solids"]["building"] > 0 and fresh["solids"]["curb"] > 0
+    for tile in sorted((tmp_path / "collision" / "tiles").iterdir()):
+        assert tile.read_bytes() == (sample_build / "collision" / "tiles" / tile.name).read_bytes(), tile.name

@@ -3,7 +3,6 @@ tiles, ``mesh.json`` and ``preview.png`` -- one function shared by the pipeline 
 
 from __future__ import annotations
 
-import importlib
 import os
 import shutil
 import tempfile
@@ -13,19 +12,12 @@ from tavf_mapkit.errors import InputError
 from tavf_mapkit.fileutil import write_bytes_atomic
 from tavf_mapkit.mesh.export import ExportLayers, export_meshes
 from tavf_mapkit.mesh.marks import MARK_COLOURS, road_marks
+from tavf_mapkit.mesh.solids import scene_solid_parts
 from tavf_mapkit.mesh.surface import DEFAULT_EPS, build_road_surface
 
 DEFAULT_TILE = 100.0
 SURFACE_FILE = "surface.npz"
-
-
-def load_scene_solids():
-    """``tavf_mapkit.mesh.solids.scene_solids`` if that module is installed, else None."""
-    try:
-        module = importlib.import_module("tavf_mapkit.mesh.solids")
-    except ImportError:
-        return None
-    return getattr(module, "scene_solids", None)
+SOLIDS_FILE = "solids.npz"
 
 
 def write_mesh_folder(odr, folder: str | Path, eps: float = DEFAULT_EPS, fmt: str = "glb",
@@ -34,10 +26,7 @@ def write_mesh_folder(odr, folder: str | Path, eps: float = DEFAULT_EPS, fmt: st
     """Mesh the map and write ``folder`` (tiles/, mesh.json, preview.png); return mesh.json's content."""
     surface = build_road_surface(odr, eps)
     marks = road_marks(odr, eps, surface.samples)
-    scene = None
-    make_solids = load_scene_solids() if solids else None
-    if make_solids is not None:
-        scene = make_solids(odr, surface.mesh, osm_path)
+    scene = scene_solid_parts(odr, surface.mesh, osm_path, eps) if solids else None
     samples = surface.samples
     extra = {
         "eps": eps,
@@ -50,19 +39,24 @@ def write_mesh_folder(odr, folder: str | Path, eps: float = DEFAULT_EPS, fmt: st
         },
         "junctions": len(surface.junction_footprints),
         "mark_colours": list(MARK_COLOURS),
-        "solids": make_solids is not None,
-        # the labelled road surface, so the collision stage can reuse it instead of meshing again
+        "solids": scene is not None,
+        # the labelled road surface and the scene solids, so the collision stage can reuse them
         "surface": {"file": SURFACE_FILE, "eps": eps},
     }
+    if scene is not None:
+        extra["scene_solids"] = {"file": SOLIDS_FILE, "eps": eps,
+                                 "buildings_from": None if osm_path is None else Path(osm_path).name}
     if odr.georeference is not None:
         from dataclasses import asdict
 
         header = odr.header
         extra["georeference"] = {"proj": header.geo_reference,
                                  "offset": None if header.offset is None else asdict(header.offset)}
-    summary = export_meshes(ExportLayers(surface.mesh, marks, scene, extra), folder, fmt, tile_size,
-                            preview=preview)
+    summary = export_meshes(ExportLayers(surface.mesh, marks, None if scene is None else scene.mesh(), extra),
+                            folder, fmt, tile_size, preview=preview)
     write_bytes_atomic(Path(folder) / SURFACE_FILE, surface.mesh.to_npz_bytes())
+    if scene is not None:
+        write_bytes_atomic(Path(folder) / SOLIDS_FILE, scene.to_npz_bytes())
     return summary
 
 

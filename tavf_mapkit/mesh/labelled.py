@@ -71,20 +71,23 @@ class LabelledMesh:
     _ARRAYS = ("vertices", "faces", "road_index", "lane_id", "kind", "uv")
 
     def to_npz_bytes(self) -> bytes:
-        """The arrays as an ``.npz`` (np.load reads it); fixed zip timestamps make it byte-reproducible."""
-        buffer = io.BytesIO()
-        with zipfile.ZipFile(buffer, "w", zipfile.ZIP_STORED) as archive:
-            for name in self._ARRAYS:
-                value = getattr(self, name)
-                if value is None:
-                    continue
-                member = io.BytesIO()
-                np.lib.format.write_array(member, np.ascontiguousarray(value), allow_pickle=False)
-                archive.writestr(zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0)),
-                                 member.getvalue())
-        return buffer.getvalue()
+        """The arrays as an ``.npz`` (np.load reads it), byte-reproducible."""
+        return npz_bytes({name: getattr(self, name) for name in self._ARRAYS})
 
     @classmethod
     def load_npz(cls, path: str | Path) -> LabelledMesh:
         with np.load(path, allow_pickle=False) as data:
             return cls(*(data.get(name, None) for name in cls._ARRAYS))
+
+
+def npz_bytes(arrays: dict[str, np.ndarray | None]) -> bytes:
+    """Arrays (None ones left out) as an uncompressed ``.npz``; fixed zip timestamps make it byte-reproducible."""
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", zipfile.ZIP_STORED) as archive:
+        for name, value in arrays.items():
+            if value is None:
+                continue
+            member = io.BytesIO()
+            np.lib.format.write_array(member, np.ascontiguousarray(value), allow_pickle=False)
+            archive.writestr(zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0)), member.getvalue())
+    return buffer.getvalue()

@@ -4,7 +4,8 @@ from their footprints.
 
 ``scene_solids`` returns one LabelledMesh (faces labelled curb / object / signal / building) for the mesh
 exporter and the collision world; ``scene_solid_parts`` keeps every solid apart, with what it was made from
-and what could not be made (for reports and tests).
+and what could not be made (for reports and tests). ``SceneSolids`` round-trips through an ``.npz`` file, so
+the collision stage reads the mesh stage's solids instead of making them again.
 """
 
 from __future__ import annotations
@@ -12,7 +13,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from tavf_mapkit.mesh.labelled import LabelledMesh
+import numpy as np
+
+from tavf_mapkit.mesh.labelled import LabelledMesh, npz_bytes
 from tavf_mapkit.mesh.solid_kit import Solid
 
 SOLID_KINDS = ("curb", "object", "signal", "building")
@@ -28,6 +31,33 @@ class SceneSolids:
 
     def counts(self) -> dict[str, int]:
         return {kind: sum(1 for solid in self.solids if solid.kind == kind) for kind in SOLID_KINDS}
+
+    def to_npz_bytes(self) -> bytes:
+        """Every solid (its mesh, kind and source) and the skipped parts as one byte-reproducible ``.npz``."""
+        mesh = self.mesh()
+        return npz_bytes({
+            "vertices": mesh.vertices, "faces": mesh.faces, "road_index": mesh.road_index,
+            "lane_id": mesh.lane_id, "kind": mesh.kind,
+            "solid_vertices": np.array([len(s.mesh.vertices) for s in self.solids], dtype=np.int64),
+            "solid_faces": np.array([s.triangles for s in self.solids], dtype=np.int64),
+            "solid_kind": np.array([s.kind for s in self.solids], dtype=str),
+            "solid_source": np.array([s.source for s in self.solids], dtype=str),
+            "skipped": np.array(self.skipped, dtype=str)})
+
+    @classmethod
+    def load_npz(cls, path: str | Path) -> SceneSolids:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {name: data[name] for name in data.files}
+        vertex_end = np.cumsum(arrays["solid_vertices"])
+        face_end = np.cumsum(arrays["solid_faces"])
+        solids = []
+        for k, (kind, source) in enumerate(zip(arrays["solid_kind"].tolist(), arrays["solid_source"].tolist())):
+            v0 = vertex_end[k] - arrays["solid_vertices"][k]
+            faces = slice(face_end[k] - arrays["solid_faces"][k], face_end[k])
+            solids.append(Solid(kind, LabelledMesh(
+                arrays["vertices"][v0:vertex_end[k]], arrays["faces"][faces] - v0, arrays["road_index"][faces],
+                arrays["lane_id"][faces], arrays["kind"][faces]), source))
+        return cls(tuple(solids), tuple(arrays["skipped"].tolist()))
 
 
 def scene_solid_parts(odr, surface: LabelledMesh | None, osm_path: Path | None = None,

@@ -59,13 +59,14 @@ def _kind_counts(mesh: LabelledMesh) -> dict[str, int]:
 
 
 def build_collision_world(odr, out_dir, eps: float = 0.05, osm_path: Path | None = None, tile: float = 100.0,
-                          surface: LabelledMesh | None = None, origin=None) -> dict:
+                          surface: LabelledMesh | None = None, origin=None, scene=None) -> dict:
     """Write ``out_dir/collision/`` (world.json and tiles/*.obj) and return the content of world.json.
 
     ``surface`` is the road-surface mesh (``tavf_mapkit.mesh.road_surface(odr, eps)`` when not given);
     ``osm_path`` the OSM input whose buildings are added; ``origin`` the recentring origin (x, y, z) -- pass
     the exported meshes' origin (mesh/mesh.json) so visual and collision world line up; by default the
-    mesh exporter's rule (``mesh.tiles.map_origin``: whole metres at the middle of the plan bounds, z = 0).
+    mesh exporter's rule (``mesh.tiles.map_origin``: whole metres at the middle of the plan bounds, z = 0);
+    ``scene`` the scene solids (``mesh.solids.SceneSolids``) when already made from the same surface and input.
     """
     from tavf_mapkit.mesh.solids import scene_solid_parts
 
@@ -77,7 +78,8 @@ def build_collision_world(odr, out_dir, eps: float = 0.05, osm_path: Path | None
         from tavf_mapkit.mesh import road_surface
 
         surface = road_surface(odr, eps=eps)
-    scene = scene_solid_parts(odr, surface, osm_path, eps)
+    if scene is None:
+        scene = scene_solid_parts(odr, surface, osm_path, eps)
     if origin is None:
         origin = map_origin([surface, scene.mesh()])
     origin = np.asarray(origin, dtype=np.float64).reshape(3) + 0.0

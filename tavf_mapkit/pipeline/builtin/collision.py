@@ -15,8 +15,9 @@ DEFAULT_TILE = 100.0
 class CollisionStage(Stage):
     inputs = ("xodr",)
     optional_inputs = ("source", "mesh")
-    version = "5"  # 2: reuses the mesh stage's surface at the same eps; 3: curbs around junctions (reverted in 4);
-    # 5: junction curbs along the connecting lanes' sides, clear of the swept path of a car on each driving lane
+    version = "6"  # 2: reuses the mesh stage's surface at the same eps; 3: curbs around junctions (reverted in 4);
+    # 5: junction curbs along the connecting lanes' sides, clear of the swept path of a car on each driving lane;
+    # 6: reuses the mesh stage's scene solids when they were made at the same eps from the same input
     description = "pybullet collision world: road surface, curbs, objects, signals, buildings (tiled OBJ)"
 
     def options(self, context: BuildContext) -> dict:
@@ -36,9 +37,11 @@ class CollisionStage(Stage):
             raise StageError(f"netconvert's OpenDRIVE is unreadable: {error}") from None
         source = context.artifacts.get("source")
         osm_path = source if source is not None and context.input_kind == "osm" else None
+        surface = _mesh_surface(context, options["eps"])
+        scene = _mesh_solids(context, options["eps"], osm_path)
         world = build_collision_world(odr, context.folder, eps=options["eps"], osm_path=osm_path,
-                                      tile=options["tile"], origin=_mesh_origin(context),
-                                      surface=_mesh_surface(context, options["eps"]))
+                                      tile=options["tile"], origin=_mesh_origin(context), surface=surface,
+                                      scene=scene)
         totals = world["totals"]
         solids = world["solids"]
         if solids["skipped"]:
@@ -46,7 +49,9 @@ class CollisionStage(Stage):
                          "(see collision/world.json)")
         facts = {"tiles": totals["tiles"], "bodies": totals["bodies"], "vertices": totals["vertices"],
                  "triangles": totals["triangles"], "origin": world["origin"],
-                 "solids": {kind: solids[kind] for kind in ("curb", "object", "signal", "building")}}
+                 "solids": {kind: solids[kind] for kind in ("curb", "object", "signal", "building")},
+                 # what came from the mesh stage instead of being made again
+                 "reused": [name for name, part in (("surface", surface), ("solids", scene)) if part is not None]}
         return StageOutput(files={"collision": "collision"}, facts=facts)
 
 
@@ -78,5 +83,23 @@ def _mesh_surface(context: BuildContext, eps: float):
         if float(saved["eps"]) != eps:
             return None
         return LabelledMesh.load_npz(mesh / saved["file"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def _mesh_solids(context: BuildContext, eps: float, osm_path):
+    """The mesh stage's scene solids when they were made at the same eps with the same buildings input."""
+    import json
+
+    from tavf_mapkit.mesh.solids import SceneSolids
+
+    mesh = context.artifacts.get("mesh")
+    if mesh is None:
+        return None
+    try:
+        saved = json.loads((mesh / "mesh.json").read_text(encoding="utf-8"))["scene_solids"]
+        if float(saved["eps"]) != eps or saved["buildings_from"] != (None if osm_path is None else osm_path.name):
+            return None
+        return SceneSolids.load_npz(mesh / saved["file"])
     except (OSError, ValueError, KeyError, TypeError):
         return None

@@ -1,6 +1,6 @@
-"""Stage "mesh": road surface, junction surfaces and road marks (plus the scene solids, when that module is
-installed) as tiled glTF (or OBJ) in mesh/, with mesh/mesh.json and a top-view preview that is also copied
-to report/mesh_preview.png. See docs/mesh.md."""
+"""Stage "mesh": road surface, junction surfaces, road marks and scene solids as tiled glTF (or OBJ) in mesh/,
+with mesh/mesh.json, a top-view preview that is also copied to report/mesh_preview.png, and the labelled
+surface and solids (surface.npz, solids.npz) the collision stage reuses. See docs/mesh.md."""
 
 from __future__ import annotations
 
@@ -15,8 +15,9 @@ from tavf_mapkit.pipeline.stages import Stage, StageOutput, register_stage
 class MeshStage(Stage):
     inputs = ("xodr",)
     optional_inputs = ("source",)
-    version = "5"  # 2: also writes mesh/surface.npz; 3: curbs around junctions (reverted in 4); 5: junction curbs
-    # along the connecting lanes' sides, clear of the swept path of a car following each driving lane
+    version = "6"  # 2: also writes mesh/surface.npz; 3: curbs around junctions (reverted in 4); 5: junction curbs
+    # along the connecting lanes' sides, clear of the swept path of a car following each driving lane;
+    # 6: also writes mesh/solids.npz
     description = "road surface, junctions and road marks (and scene solids) as tiled glTF + preview"
 
     def options(self, context: BuildContext) -> dict:
@@ -31,14 +32,7 @@ class MeshStage(Stage):
         fmt = str(section.get("format", "glb")).lower()
         if fmt not in ("glb", "obj"):
             raise InputError(f"[mesh] format must be glb or obj, not {fmt!r}")
-        return {"eps": eps, "tile": tile, "format": fmt, "solids": bool(section.get("solids", True)),
-                "solids_module": self._solids_available()}
-
-    @staticmethod
-    def _solids_available() -> bool:
-        from tavf_mapkit.mesh.folder import load_scene_solids
-
-        return load_scene_solids() is not None
+        return {"eps": eps, "tile": tile, "format": fmt, "solids": bool(section.get("solids", True))}
 
     def run(self, context: BuildContext) -> StageOutput:
         from tavf_mapkit.mesh.folder import write_mesh_folder
@@ -50,7 +44,7 @@ class MeshStage(Stage):
         except InputError as error:
             raise StageError(f"netconvert's OpenDRIVE is unreadable: {error}") from None
         source = context.artifacts.get("source")
-        osm_path = source if source is not None and str(source).lower().endswith(".osm") else None
+        osm_path = source if source is not None and context.input_kind == "osm" else None
         folder = context.output_path("mesh/mesh.json").parent
         summary = write_mesh_folder(odr, folder, options["eps"], options["format"], options["tile"],
                                     osm_path=osm_path, solids=options["solids"])
