@@ -40,12 +40,13 @@ _ = odr.arrays
 t1 = time.perf_counter()
 from tavf_mapkit.mesh import build_road_surface, road_marks, KIND_CODE
 from tavf_mapkit.mesh.export import ExportLayers, export_meshes
-from tavf_mapkit.mesh.folder import SURFACE_FILE
+from tavf_mapkit.mesh.folder import SOLIDS_FILE, SURFACE_FILE
 from tavf_mapkit.mesh.solids import scene_solid_parts
 from tavf_mapkit.world import build_collision_world
 t_import = time.perf_counter()
 c0 = time.process_time()
-# the mesh stage (mesh/folder.py write_mesh_folder): surface, marks, scene solids, tiled glb + surface.npz
+# the mesh stage (mesh/folder.py write_mesh_folder): surface, marks, scene solids, tiled glb + surface.npz +
+# solids.npz
 surface = build_road_surface(odr, eps)
 t2 = time.perf_counter()
 marks = road_marks(odr, eps, surface.samples)
@@ -55,10 +56,11 @@ t_solids = time.perf_counter()
 out = Path(tempfile.mkdtemp())
 summary = export_meshes(ExportLayers(surface.mesh, marks, scene.mesh()), out / "mesh", "glb", 100.0, preview=False)
 (out / "mesh" / SURFACE_FILE).write_bytes(surface.mesh.to_npz_bytes())
+(out / "mesh" / SOLIDS_FILE).write_bytes(scene.to_npz_bytes())
 t4 = time.perf_counter()
-# the collision stage: the same surface and the exported meshes' origin (pipeline/builtin/collision.py)
+# the collision stage: the same surface and solids, the exported meshes' origin (pipeline/builtin/collision.py)
 origin = [summary["origin"][k] for k in "xyz"]
-world = build_collision_world(odr, out, eps=eps, surface=surface.mesh, origin=origin)
+world = build_collision_world(odr, out, eps=eps, surface=surface.mesh, origin=origin, scene=scene)
 t_collision = time.perf_counter()
 cpu = time.process_time() - c0
 peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
@@ -130,8 +132,8 @@ def report(r: dict, eps: float) -> None:
     lanes = r["lane_triangles"] + r["junction_triangles"]
     print(f"\neps {eps:g} m")
     print(f"  time      mesh {mesh:.2f} s (surface {r['surface_s']:.2f} + marks {r['marks_s']:.2f} + scene solids "
-          f"{r['solids_s']:.2f}) + export {r['export_s']:.2f} s (glb tiles + surface.npz) + collision "
-          f"{r['collision_s']:.2f} s (world from the same surface, solids made again as the stage does) "
+          f"{r['solids_s']:.2f}) + export {r['export_s']:.2f} s (glb tiles + surface.npz + solids.npz) + collision "
+          f"{r['collision_s']:.2f} s (world from the same surface and solids, as the stage) "
           f"= {total:.2f} s (target <= {TARGET_SECONDS:g} s: {total / TARGET_SECONDS:.2f}x)")
     print(f"            CPU time {r['cpu_s']:.2f} s ({r['cpu_s'] / TARGET_SECONDS:.2f}x; wall time suffers when other "
           f"jobs share the cores); not counted: preview {r['preview_s']:.2f} s, reading the xodr "
