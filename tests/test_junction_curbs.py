@@ -11,9 +11,15 @@ from tavf_mapkit.mesh import road_surface
 from tavf_mapkit.mesh.labelled import KIND_CODE
 from tavf_mapkit.mesh.solid_curbs import CURB_FOUNDATION
 from tavf_mapkit.mesh.solid_junction_curbs import JUNCTION_CURB_HEIGHT, junction_curb_solids
-from tavf_mapkit.mesh.swept_path import (DESIGN_HALF_WIDTH, DESIGN_WHEELBASE, MARGIN, STEP, swept_width,
-                                         wheelbase_curvature)
 from tavf_mapkit.mesh.solids import SceneSolids
+from tavf_mapkit.mesh.swept_path import (
+    DESIGN_HALF_WIDTH,
+    DESIGN_WHEELBASE,
+    MARGIN,
+    STEP,
+    swept_width,
+    wheelbase_curvature,
+)
 from tavf_mapkit.opendrive import load_opendrive
 from tavf_mapkit.opendrive.sampling import sample_lanes, sample_lanes_at
 from tests.conftest import shared_path

@@ -73,8 +73,9 @@ def test_resimulation_reproduces_the_drive_exactly(hazard_drive):
     assert report["steps_compared"] == report["steps_recorded"] == 281
 
 
-def copy_recording(source, target, *, empty_answers=False, chunk_size=1024 * 1024):
-    """A copy of a recording, re-chunked; with ``empty_answers`` the UDM answers lose their objects."""
+def copy_recording(source, target, *, empty_answers=False, chunk_size=1024 * 1024, nudge_traffic_at=None):
+    """A copy of a recording, re-chunked; with ``empty_answers`` the UDM answers lose their objects, with
+    ``nudge_traffic_at`` the first SUMO vehicle of that /traffic step moves 1 cm."""
     with source.open("rb") as reading, target.open("wb") as writing:
         reader = make_reader(reading)
         writer = Writer(writing, chunk_size=chunk_size)
@@ -91,6 +92,10 @@ def copy_recording(source, target, *, empty_answers=False, chunk_size=1024 * 102
                 answer = json.loads(data)
                 answer["features"] = []
                 data = json.dumps(answer).encode()
+            if channel.topic == "/traffic" and json.loads(data)["step"] == nudge_traffic_at:
+                tick = json.loads(data)
+                tick["x"][0] += 0.01
+                data = json.dumps(tick).encode()
             writer.add_message(channel_ids[channel.id], message.log_time, data, message.publish_time)
         writer.finish()
 
@@ -159,3 +164,26 @@ def test_resimulation_refuses_a_different_map(hazard_drive, sample_build_dir, tm
     result = CliRunner().invoke(cli, ["replay", "--resimulate", str(root / "udm" / "session.mcap"), "--map",
                                       str(other)])
     assert result.exit_code == 2 and "map differs from the recorded one" in result.output
+
+
+@pytest.mark.slow
+def test_resimulation_compares_the_sumo_traffic_too(sample_build_dir, tmp_path):
+    out = tmp_path / "traffic"
+    result = twin("drive", "--map", str(sample_build_dir), "--out", str(out), "--random", "--duration", "12",
+                  "--seed", "3", "--traffic", "8", "--no-plot", "--format", "json")
+    assert result.exit_code == 0, result.output
+    ticks = read_recording(out / "session.mcap").messages("/traffic")
+    assert len(ticks) >= 100 and any(tick.data["ids"] for tick in ticks)
+    result = twin("replay", "--resimulate", str(out / "session.mcap"), "--format", "json")
+    assert result.exit_code == 0, result.output
+    report = json.loads(result.output)
+    assert report["identical"] and report["traffic_recorded"] == report["traffic_resimulated"] == len(ticks)
+    assert report["traffic_mismatched"] == 0
+    # one vehicle 1 cm off in one recorded tick: the ego is the same, the traffic is not
+    step = next(tick.data["step"] for tick in ticks[len(ticks) // 2:] if tick.data["ids"])
+    nudged = tmp_path / "nudged.mcap"
+    copy_recording(out / "session.mcap", nudged, nudge_traffic_at=step)
+    result = twin("replay", "--resimulate", str(nudged))
+    assert result.exit_code == 1
+    assert result.output.startswith("DIFFERENT") and "max difference 0" in result.output.splitlines()[0]
+    assert f"first traffic difference at step {step}" in result.output

@@ -14,7 +14,8 @@ import click
 @click.argument("recording", type=click.Path(path_type=Path), metavar="SESSION.mcap")
 @click.option("--resimulate", is_flag=True,
               help="Run the drive again with the recorded configuration, seeds and UDM answers and compare "
-                   "every ego state with the recorded one. Exit 1 unless they are identical.")
+                   "every ego state (and /traffic message) with the recorded one. Exit 1 unless they are "
+                   "identical.")
 @click.option("--map", "map_dir", type=click.Path(path_type=Path), metavar="BUILD",
               help="The build to re-simulate on, if it moved since the recording (its map must be the same: "
                    "the OpenDRIVE sha256 is checked).")
@@ -63,6 +64,12 @@ def replay(recording: Path, resimulate: bool, map_dir: Path | None, keep: Path |
                 click.echo(f"  first difference at step {comparison.first_difference_step}")
             if comparison.mismatched_identity:
                 click.echo(f"  differing {comparison.mismatched_identity}")
+            if comparison.traffic_recorded or comparison.traffic_resimulated:
+                same = min(comparison.traffic_recorded, comparison.traffic_resimulated) - comparison.traffic_mismatched
+                click.echo(f"  traffic: {same} of {comparison.traffic_recorded} recorded /traffic messages identical "
+                           f"({comparison.traffic_resimulated} re-simulated)")
+            if comparison.traffic_first_difference_step is not None:
+                click.echo(f"  first traffic difference at step {comparison.traffic_first_difference_step}")
             if not comparison.recording_complete:
                 click.echo("  note: the recording was cut short (no MCAP footer); compared as far as it goes")
         if not comparison.identical:

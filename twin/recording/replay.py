@@ -60,13 +60,20 @@ class Comparison:
     first_difference_step: int | None  # first step where any field differs, None when identical
     mismatched_identity: dict[str, int]  # IDENTITY_FIELDS that differ: how many steps
     recording_complete: bool
+    # /traffic (SUMO vehicles, persons, signals, the ego's cap): 10 Hz messages, compared whole
+    traffic_recorded: int = 0
+    traffic_resimulated: int = 0
+    traffic_mismatched: int = 0  # compared messages that differ in any value
+    traffic_first_difference_step: int | None = None
 
     @property
     def identical(self) -> bool:
-        same_length = self.steps_resimulated == self.steps_recorded or (
-            not self.recording_complete and self.steps_resimulated >= self.steps_recorded)
-        return (same_length and self.first_difference_step is None and not self.mismatched_identity
-                and self.steps_compared > 0)
+        def as_many(recorded: int, resimulated: int) -> bool:
+            return resimulated == recorded or (not self.recording_complete and resimulated >= recorded)
+
+        return (as_many(self.steps_recorded, self.steps_resimulated) and self.first_difference_step is None
+                and not self.mismatched_identity and self.steps_compared > 0
+                and as_many(self.traffic_recorded, self.traffic_resimulated) and not self.traffic_mismatched)
 
     def as_dict(self) -> dict[str, Any]:
         data = {f.name: getattr(self, f.name) for f in fields(self)}
@@ -96,6 +103,17 @@ def compare_states(recorded: list[dict[str, Any]], resimulated: list[dict[str, A
         if differs and first is None:
             first = int(a.get("step", index))
     return Comparison(len(recorded), len(resimulated), n, max_difference, first, mismatched, recording_complete)
+
+
+def with_traffic(comparison: Comparison, recorded: list[dict[str, Any]],
+                 resimulated: list[dict[str, Any]]) -> Comparison:
+    """The comparison with the /traffic messages compared one by one (the first ``len(recorded)``)."""
+    from dataclasses import replace
+
+    differing = [a.get("step") for a, b in zip(recorded, resimulated) if a != b]
+    return replace(comparison, traffic_recorded=len(recorded), traffic_resimulated=len(resimulated),
+                   traffic_mismatched=len(differing),
+                   traffic_first_difference_step=differing[0] if differing else None)
 
 
 def _difference(a: Any, b: Any) -> float:
@@ -141,7 +159,7 @@ def drive_config_from(recording: Recording, map_dir: Path | None = None, out_dir
 
 
 def resimulate(path: str | Path, map_dir: Path | None = None, keep: Path | None = None) -> Comparison:
-    """Drive the recording again and compare the ego states; ``keep`` keeps the new outputs there."""
+    """Drive the recording again and compare the ego states and the traffic; ``keep`` keeps the new outputs."""
     from twin.session.loop import Session
     from twin.session.plugins import create_hooks
 
@@ -155,8 +173,15 @@ def resimulate(path: str | Path, map_dir: Path | None = None, keep: Path | None 
             last_t = float(recorded_states[-1]["t"])
             config = _replace(config, duration=max(last_t, config.dt))
         Session(config, create_hooks(config.as_dict())).run()
-        resimulated = read_recording(out_dir / RECORDING_NAME).ego_states
-    return compare_states(recorded_states, resimulated, recording.complete)
+        again = read_recording(out_dir / RECORDING_NAME)
+    comparison = compare_states(recorded_states, again.ego_states, recording.complete)
+    return with_traffic(comparison, _traffic(recording), _traffic(again))
+
+
+def _traffic(recording: Recording) -> list[dict[str, Any]]:
+    from twin.traffic.record import TRAFFIC_CHANNEL
+
+    return [message.data for message in recording.messages(TRAFFIC_CHANNEL.topic)]
 
 
 def _replace(config, **changes):
