@@ -471,3 +471,36 @@ def test_collision_stage_reuses_the_mesh_stage_solids_exactly(sample_build, tmp_
     assert fresh["solids"]["building"] > 0 and fresh["solids"]["curb"] > 0
     for tile in sorted((tmp_path / "collision" / "tiles").iterdir()):
         assert tile.read_bytes() == (sample_build / "collision" / "tiles" / tile.name).read_bytes(), tile.name
+
+
+@pytest.mark.parametrize("stage, option, toml, shown", [("collision", "eps", '"abc"', "'abc'"),
+                                                        ("mesh", "tile", "-5", "-5"), ("collision", "tile", "inf", "inf"),
+                                                        ("mesh", "eps", "true", "True")])
+def test_bad_metre_options_are_one_line_errors(tmp_path, stage, option, toml, shown):
+    pipeline = pipeline_file(tmp_path, ["extract", "netconvert", "opendrive", "mesh", "collision"],
+                             f"[{stage}]\n{option} = {toml}\n")
+    result = build(SAMPLE, "--pipeline", pipeline, "-o", tmp_path / "b", "-q")
+    assert result.exit_code == 2
+    assert result.stderr.strip().endswith(f"[{stage}] {option} must be a positive number of metres, not {shown}")
+    assert not (tmp_path / "b").exists() and not leftovers(tmp_path)
+
+
+def test_damaged_mesh_stage_files_are_made_again_not_trusted(sample_build, tmp_path):
+    import shutil
+    from types import SimpleNamespace
+
+    from tavf_mapkit.pipeline.builtin.collision import _MeshStageOutput
+
+    mesh = tmp_path / "mesh"
+    shutil.copytree(sample_build / "mesh", mesh)
+    meshed = _MeshStageOutput(SimpleNamespace(artifacts={"mesh": mesh}))
+    osm = sample_build / "source" / f"{sample_build.name}.osm"
+    assert meshed.surface(0.05) is not None and meshed.solids(0.05, osm) is not None and meshed.origin()
+    assert meshed.surface(0.1) is None and meshed.solids(0.1, osm) is None  # other eps
+    assert meshed.solids(0.05, None) is None  # made with buildings, wanted without
+    data = (mesh / "solids.npz").read_bytes()
+    (mesh / "solids.npz").write_bytes(data[: len(data) // 2])
+    (mesh / "surface.npz").write_bytes(b"not a zip")
+    assert meshed.surface(0.05) is None and meshed.solids(0.05, osm) is None
+    (mesh / "mesh.json").write_text("{")
+    assert _MeshStageOutput(SimpleNamespace(artifacts={"mesh": mesh})).origin() is None

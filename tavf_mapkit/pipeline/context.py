@@ -30,6 +30,18 @@ class BuildContext:
         """The pipeline file's table ``[name]`` with command-line overrides applied."""
         return self.config.section(name)
 
+    def metres(self, section: str, key: str, default: float) -> float:
+        """Option ``[section] key``: a positive, finite number of metres (``default`` when not set)."""
+        import math
+
+        from tavf_mapkit.errors import InputError
+
+        value = self.section(section).get(key, default)
+        number = float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else math.nan
+        if not (number > 0 and math.isfinite(number)):
+            raise InputError(f"[{section}] {key} must be a positive number of metres, not {value!r}")
+        return number
+
     def output_path(self, relative: str) -> Path:
         """Absolute path inside the build folder for a new output; its parent folder is created."""
         path = self.folder / relative

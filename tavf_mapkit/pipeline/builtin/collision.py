@@ -21,27 +21,25 @@ class CollisionStage(Stage):
     description = "pybullet collision world: road surface, curbs, objects, signals, buildings (tiled OBJ)"
 
     def options(self, context: BuildContext) -> dict:
-        section = context.section("collision")
-        return {"eps": float(section.get("eps", DEFAULT_EPS)), "tile": float(section.get("tile", DEFAULT_TILE))}
+        return {"eps": context.metres("collision", "eps", DEFAULT_EPS),
+                "tile": context.metres("collision", "tile", DEFAULT_TILE)}
 
     def run(self, context: BuildContext) -> StageOutput:
         from tavf_mapkit.opendrive import load_opendrive
         from tavf_mapkit.world import build_collision_world
 
         options = self.options(context)
-        if not options["eps"] > 0 or not options["tile"] > 0:
-            raise InputError("[collision] eps and tile must be positive numbers of metres")
         try:
             odr = load_opendrive(context.artifacts["xodr"])
         except InputError as error:
             raise StageError(f"netconvert's OpenDRIVE is unreadable: {error}") from None
         source = context.artifacts.get("source")
         osm_path = source if source is not None and context.input_kind == "osm" else None
-        surface = _mesh_surface(context, options["eps"])
-        scene = _mesh_solids(context, options["eps"], osm_path)
+        meshed = _MeshStageOutput(context)
+        surface = meshed.surface(options["eps"])
+        scene = meshed.solids(options["eps"], osm_path)
         world = build_collision_world(odr, context.folder, eps=options["eps"], osm_path=osm_path,
-                                      tile=options["tile"], origin=_mesh_origin(context), surface=surface,
-                                      scene=scene)
+                                      tile=options["tile"], origin=meshed.origin(), surface=surface, scene=scene)
         totals = world["totals"]
         solids = world["solids"]
         if solids["skipped"]:
@@ -55,51 +53,50 @@ class CollisionStage(Stage):
         return StageOutput(files={"collision": "collision"}, facts=facts)
 
 
-def _mesh_origin(context: BuildContext):
-    """The exported meshes' origin (mesh/mesh.json), so the twin's visual and collision worlds coincide."""
-    import json
+class _MeshStageOutput:
+    """What the mesh stage left for this one (mesh/mesh.json and its files); every part None when absent,
+    unreadable or made differently (other eps, other buildings input), so the stage makes it itself."""
 
-    mesh = context.artifacts.get("mesh")
-    if mesh is None:
-        return None
-    try:
-        origin = json.loads((mesh / "mesh.json").read_text(encoding="utf-8"))["origin"]
-        return [float(origin["x"]), float(origin["y"]), float(origin["z"])]
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
+    def __init__(self, context: BuildContext):
+        import json
 
+        self.folder = context.artifacts.get("mesh")
+        self.record = {}
+        if self.folder is not None:
+            try:
+                self.record = json.loads((self.folder / "mesh.json").read_text(encoding="utf-8"))
+            except (OSError, ValueError):
+                pass
 
-def _mesh_surface(context: BuildContext, eps: float):
-    """The mesh stage's labelled road surface when it was made at the same eps (saves meshing twice)."""
-    import json
-
-    from tavf_mapkit.mesh.labelled import LabelledMesh
-
-    mesh = context.artifacts.get("mesh")
-    if mesh is None:
-        return None
-    try:
-        saved = json.loads((mesh / "mesh.json").read_text(encoding="utf-8"))["surface"]
-        if float(saved["eps"]) != eps:
+    def origin(self):
+        """The exported meshes' origin, so the twin's visual and collision worlds coincide."""
+        try:
+            origin = self.record["origin"]
+            return [float(origin["x"]), float(origin["y"]), float(origin["z"])]
+        except (KeyError, TypeError, ValueError):
             return None
-        return LabelledMesh.load_npz(mesh / saved["file"])
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
 
+    def surface(self, eps: float):
+        """The labelled road surface, when it was made at ``eps`` (saves meshing twice)."""
+        from tavf_mapkit.mesh.labelled import LabelledMesh
 
-def _mesh_solids(context: BuildContext, eps: float, osm_path):
-    """The mesh stage's scene solids when they were made at the same eps with the same buildings input."""
-    import json
+        return self._load("surface", LabelledMesh.load_npz, eps=eps)
 
-    from tavf_mapkit.mesh.solids import SceneSolids
+    def solids(self, eps: float, osm_path):
+        """The scene solids, when they were made at ``eps`` with the same buildings input."""
+        from tavf_mapkit.mesh.solids import SceneSolids
 
-    mesh = context.artifacts.get("mesh")
-    if mesh is None:
-        return None
-    try:
-        saved = json.loads((mesh / "mesh.json").read_text(encoding="utf-8"))["scene_solids"]
-        if float(saved["eps"]) != eps or saved["buildings_from"] != (None if osm_path is None else osm_path.name):
+        return self._load("scene_solids", SceneSolids.load_npz, eps=eps,
+                          buildings_from=None if osm_path is None else osm_path.name)
+
+    def _load(self, key: str, load, eps: float, **same):
+        import zipfile
+
+        try:
+            saved = self.record[key]
+            if float(saved["eps"]) != eps or any(saved[name] != value for name, value in same.items()):
+                return None
+            return load(self.folder / saved["file"])
+        # a damaged file is made again, not trusted: BadZipFile (zip), EOFError / ValueError (arrays)
+        except (OSError, ValueError, KeyError, TypeError, IndexError, EOFError, zipfile.BadZipFile):
             return None
-        return SceneSolids.load_npz(mesh / saved["file"])
-    except (OSError, ValueError, KeyError, TypeError):
-        return None

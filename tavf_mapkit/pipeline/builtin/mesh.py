@@ -22,13 +22,7 @@ class MeshStage(Stage):
 
     def options(self, context: BuildContext) -> dict:
         section = context.section("mesh")
-        try:
-            eps = float(section.get("eps", 0.05))
-            tile = float(section.get("tile", 100.0))
-        except (TypeError, ValueError):
-            raise InputError("[mesh] eps and tile must be numbers of metres") from None
-        if not (eps > 0 and tile > 0):
-            raise InputError("[mesh] eps and tile must be positive")
+        eps, tile = context.metres("mesh", "eps", 0.05), context.metres("mesh", "tile", 100.0)
         fmt = str(section.get("format", "glb")).lower()
         if fmt not in ("glb", "obj"):
             raise InputError(f"[mesh] format must be glb or obj, not {fmt!r}")
