@@ -42,6 +42,21 @@ class BuildContext:
             raise InputError(f"[{section}] {key} must be a positive number of metres, not {value!r}")
         return number
 
+    def opendrive(self):
+        """The build's OpenDRIVE (artifact ``xodr``) loaded; a StageError when it is unreadable."""
+        from tavf_mapkit.errors import InputError, StageError
+        from tavf_mapkit.opendrive import load_opendrive
+
+        try:
+            return load_opendrive(self.artifacts["xodr"])
+        except InputError as error:
+            raise StageError(f"netconvert's OpenDRIVE is unreadable: {error}") from None
+
+    def osm_source(self) -> Path | None:
+        """The build's own copy of its OSM input (for buildings), None for a SUMO network input."""
+        source = self.artifacts.get("source")
+        return source if source is not None and self.input_kind == "osm" else None
+
     def output_path(self, relative: str) -> Path:
         """Absolute path inside the build folder for a new output; its parent folder is created."""
         path = self.folder / relative

@@ -3,7 +3,6 @@ with the OSM input's buildings when the build started from OSM. See docs/collisi
 
 from __future__ import annotations
 
-from tavf_mapkit.errors import InputError, StageError
 from tavf_mapkit.pipeline.context import BuildContext
 from tavf_mapkit.pipeline.stages import Stage, StageOutput, register_stage
 
@@ -25,16 +24,11 @@ class CollisionStage(Stage):
                 "tile": context.metres("collision", "tile", DEFAULT_TILE)}
 
     def run(self, context: BuildContext) -> StageOutput:
-        from tavf_mapkit.opendrive import load_opendrive
         from tavf_mapkit.world import build_collision_world
 
         options = self.options(context)
-        try:
-            odr = load_opendrive(context.artifacts["xodr"])
-        except InputError as error:
-            raise StageError(f"netconvert's OpenDRIVE is unreadable: {error}") from None
-        source = context.artifacts.get("source")
-        osm_path = source if source is not None and context.input_kind == "osm" else None
+        odr = context.opendrive()
+        osm_path = context.osm_source()
         meshed = _MeshStageOutput(context)
         surface = meshed.surface(options["eps"])
         scene = meshed.solids(options["eps"], osm_path)

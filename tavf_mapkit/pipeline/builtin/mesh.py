@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import shutil
 
-from tavf_mapkit.errors import InputError, StageError
+from tavf_mapkit.errors import InputError
 from tavf_mapkit.pipeline.context import BuildContext
 from tavf_mapkit.pipeline.stages import Stage, StageOutput, register_stage
 
@@ -30,15 +30,10 @@ class MeshStage(Stage):
 
     def run(self, context: BuildContext) -> StageOutput:
         from tavf_mapkit.mesh.folder import write_mesh_folder
-        from tavf_mapkit.opendrive import load_opendrive
 
         options = self.options(context)
-        try:
-            odr = load_opendrive(context.artifacts["xodr"])
-        except InputError as error:
-            raise StageError(f"netconvert's OpenDRIVE is unreadable: {error}") from None
-        source = context.artifacts.get("source")
-        osm_path = source if source is not None and context.input_kind == "osm" else None
+        odr = context.opendrive()
+        osm_path = context.osm_source()
         folder = context.output_path("mesh/mesh.json").parent
         summary = write_mesh_folder(odr, folder, options["eps"], options["format"], options["tile"],
                                     osm_path=osm_path, solids=options["solids"])

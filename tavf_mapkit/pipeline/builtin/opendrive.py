@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 
-from tavf_mapkit.errors import InputError, StageError
 from tavf_mapkit.pipeline.context import BuildContext
 from tavf_mapkit.pipeline.stages import Stage, StageOutput, register_stage
 
@@ -17,13 +16,9 @@ class OpenDriveStage(Stage):
     description = "read and check the OpenDRIVE (counts, bounds, georeference plausibility)"
 
     def run(self, context: BuildContext) -> StageOutput:
-        from tavf_mapkit.opendrive import load_opendrive
         from tavf_mapkit.opendrive.summary import summarise
 
-        try:
-            odr = load_opendrive(context.artifacts["xodr"])
-        except InputError as error:
-            raise StageError(f"netconvert's OpenDRIVE is unreadable: {error}") from None
+        odr = context.opendrive()
         summary = summarise(odr)
         summary["file"] = context.artifacts["xodr"].name
         path = context.output_path("report/opendrive.json")
