@@ -149,14 +149,10 @@ class UdmPublisher:
 
     def flush(self, timeout_s: float = 5.0) -> bool:
         """Wait until everything queued was posted (tests, the end of a run); False on timeout."""
-        deadline = time.monotonic() + timeout_s
         with self._lock:
-            while self._pending or self._in_flight:
-                remaining = deadline - time.monotonic()
-                if remaining <= 0 or not self._thread.is_alive():
-                    return False
-                self._lock.wait(remaining)
-        return True
+            self._lock.wait_for(lambda: not (self._pending or self._in_flight) or not self._thread.is_alive(),
+                                timeout_s)
+            return not (self._pending or self._in_flight)
 
     def close(self, timeout_s: float = 5.0) -> None:
         self.flush(timeout_s)
