@@ -1,8 +1,8 @@
 """The netconvert stage: OSM or a SUMO network -> NAME.net.xml + NAME.xodr in one run of SUMO's netconvert.
 
 netconvert is the binary of the ``eclipse-sumo`` wheel, run as a subprocess. Its options come from a named
-profile (``pipelines/profiles/NAME.toml``, see docs/netconvert-profiles.md); all of its output goes to a
-log, warnings are counted by kind, and its first error becomes a one-line StageError.
+profile (package data ``tavf_mapkit/data/profiles/NAME.toml``, see docs/netconvert-profiles.md); all of its
+output goes to a log, warnings are counted by kind, and its first error becomes a one-line StageError.
 
 Projection (docs/netconvert-profiles.md, "Projection"):
 - OSM input: ``--proj`` with a transverse Mercator centred on the extract (default), or ``--proj.utm``.
@@ -26,10 +26,11 @@ from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from tavf_mapkit.data import data_path
 from tavf_mapkit.errors import InputError, StageError
 from tavf_mapkit.projection import as_tmerc, tmerc_centred_on
 
-PROFILES_DIR = Path(__file__).resolve().parents[1] / "pipelines" / "profiles"
+PROFILES_DIR = data_path("profiles")
 CRS_CHOICES = ("tmerc", "utm", "keep")
 # Options every run gets: no schema look-ups (hermetic, no network), every warning on its own line so the
 # log can be counted by kind (netconvert otherwise folds repeats into "N total messages of type ...").
@@ -100,7 +101,7 @@ class Profile:
 
 
 def load_profile(name_or_path: str | Path) -> Profile:
-    """A profile by name (``carla``, ``full``: pipelines/profiles/NAME.toml) or by path to a .toml file.
+    """A profile by name (``carla``, ``full``: data/profiles/NAME.toml) or by path to a .toml file.
 
     A profile may say ``extends = "carla"``; its tables are then laid over the parent's.
     """
