@@ -1,4 +1,4 @@
-"""CI accuracy regression: measure the real data and compare with pipelines/baselines/accuracy.json.
+"""CI accuracy regression: measure the real data and compare with tavf_mapkit/data/baselines/accuracy.json.
 
 A metric worse than its baseline beyond the stated tolerance fails. Baselines change only through
 ``mapkit baseline refresh`` (never from a test).

@@ -1,6 +1,6 @@
 """Accuracy baselines: named measurements on the real data, their committed values and tolerances.
 
-A baseline file (pipelines/baselines/accuracy.json) maps each measurement to its metrics:
+A baseline file (package data tavf_mapkit/data/baselines/accuracy.json) maps each measurement to its metrics:
 ``{"value": v, "tolerance": t, "better": "lower" | "higher" | "equal"}``. A metric regresses when it is
 worse than ``value`` by more than ``tolerance`` ("equal": differs by more). Values change only through
 ``mapkit baseline refresh``, which recomputes them and keeps tolerances; tests never write the file.
@@ -13,9 +13,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from tavf_mapkit.data import data_path
 from tavf_mapkit.errors import InputError
 
-BASELINE_FILE = Path(__file__).resolve().parents[2] / "pipelines" / "baselines" / "accuracy.json"
+# Package data, so `mapkit baseline show` works in an installed wheel; in a development checkout (editable
+# install) this is the tracked file that `mapkit baseline refresh` rewrites and the regression test reads.
+BASELINE_FILE = data_path("baselines", "accuracy.json")
 
 
 @dataclass(frozen=True)

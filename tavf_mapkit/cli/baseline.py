@@ -12,7 +12,7 @@ from tavf_mapkit.cli.lazy import LazyGroup
 
 @click.group(cls=LazyGroup)
 def baseline() -> None:
-    """Accuracy baselines under pipelines/baselines/ that CI compares new measurements with.
+    """Accuracy baselines (tavf_mapkit/data/baselines/, package data) that CI compares new measurements with.
 
     \b
     $ mapkit baseline show
@@ -22,7 +22,7 @@ def baseline() -> None:
 
 @baseline.command()
 @click.option("--file", "path", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="Baseline file (default: pipelines/baselines/accuracy.json of this checkout).")
+              help="Baseline file (default: tavf_mapkit/data/baselines/accuracy.json of this package).")
 @click.option("--format", "fmt", type=click.Choice(["text", "json"]), default="text", show_default=True)
 def show(path: Path | None, fmt: str) -> None:
     """Print every measurement with its baseline values, tolerances and direction."""
@@ -47,7 +47,7 @@ def show(path: Path | None, fmt: str) -> None:
 @click.option("--only", multiple=True, help="Refresh only these measurements (repeatable).")
 @click.option("--note", default="", help="Why the baselines change (stored in the file).")
 @click.option("--file", "path", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="Baseline file to write (default: pipelines/baselines/accuracy.json).")
+              help="Baseline file to write (default: tavf_mapkit/data/baselines/accuracy.json).")
 def refresh(shared: Path | None, work: Path | None, only: tuple[str, ...], note: str, path: Path | None) -> None:
     """Rebuild the real inputs with `mapkit build` (default stages), measure, and rewrite the baselines.
 
