@@ -475,7 +475,7 @@ def test_collision_stage_reuses_the_mesh_stage_solids_exactly(sample_build, tmp_
 
 @pytest.mark.parametrize("stage, option, toml, shown", [("collision", "eps", '"abc"', "'abc'"),
                                                         ("mesh", "tile", "-5", "-5"), ("collision", "tile", "inf", "inf"),
-                                                        ("mesh", "eps", "true", "True")])
+                                                        ("mesh", "eps", "true", "true")])
 def test_bad_metre_options_are_one_line_errors(tmp_path, stage, option, toml, shown):
     pipeline = pipeline_file(tmp_path, ["extract", "netconvert", "opendrive", "mesh", "collision"],
                              f"[{stage}]\n{option} = {toml}\n")

@@ -57,28 +57,22 @@ class PipelineConfig:
         return config
 
     def validate(self) -> None:
+        """Every table, key, type and range against the schema (tavf_mapkit/pipeline/schema.py): one line
+        naming the file, table and key for the first problem."""
+        from tavf_mapkit.pipeline.schema import check_tables
+
         where = str(self.file) if self.file else None
+        check_tables(self.sections, file=where, stage_names=self.stages)
         area = self.sections.get("area", {})
         if "bbox" in area and "polygon_path" in area:
             raise InputError("[area] has both bbox and polygon_path; give one", file=where)
         if "bbox" in area:
             from tavf_mapkit.osm.area import bbox_area
 
-            bbox = area["bbox"]
-            if not isinstance(bbox, (list, tuple)) or len(bbox) != 4 or \
-                    not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in bbox):
-                raise InputError("[area] bbox must be [west, south, east, north] in degrees", file=where)
-            bbox_area(bbox)
-        netconvert = self.sections.get("netconvert", {})
-        if not isinstance(netconvert.get("profile", DEFAULT_PROFILE), (str, Path)):
-            raise InputError("[netconvert] profile must be a name (carla, full) or a .toml path", file=where)
-        from tavf_mapkit.netconvert import CRS_CHOICES
-
-        if netconvert.get("crs", DEFAULT_CRS) not in CRS_CHOICES:
-            raise InputError(f"[netconvert] crs must be one of {', '.join(CRS_CHOICES)}", file=where)
-        routes = self.sections.get("extract", {}).get("routes", False)
-        if not isinstance(routes, bool):
-            raise InputError("[extract] routes must be true or false", file=where)
+            try:
+                bbox_area(area["bbox"])
+            except InputError as error:
+                raise InputError(f"[area] {error.message}", file=where) from None
 
     def to_dict(self) -> dict:
         return {"file": str(self.file) if self.file else None, "name": self.name, "stages": list(self.stages),
@@ -102,12 +96,10 @@ def load_pipeline(path: str | Path | None) -> PipelineConfig:
     head = data.pop("pipeline", {})
     if not isinstance(head, dict):
         raise InputError("[pipeline] must be a table", file=name)
+    from tavf_mapkit.pipeline.schema import check_tables
+
+    check_tables({"pipeline": head}, file=str(path.resolve()))  # named as validate() names it
     stages = head.get("stages", list(DEFAULT_STAGES))
-    if not isinstance(stages, list) or not all(isinstance(stage, str) for stage in stages) or not stages:
-        raise InputError("[pipeline] stages must be a list of stage names", file=name)
-    for key, value in data.items():
-        if not isinstance(value, dict):
-            raise InputError(f"top-level key {key!r} must be a table ([{key}])", file=name)
     sections = _resolve_paths(data, path.resolve().parent)
     config = PipelineConfig(path.resolve(), head.get("name") or path.stem, tuple(stages), sections)
     config.validate()

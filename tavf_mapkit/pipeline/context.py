@@ -31,16 +31,14 @@ class BuildContext:
         return self.config.section(name)
 
     def metres(self, section: str, key: str, default: float) -> float:
-        """Option ``[section] key``: a positive, finite number of metres (``default`` when not set)."""
-        import math
+        """Option ``[section] key``: a positive, finite number of metres (``default`` when not set).
 
-        from tavf_mapkit.errors import InputError
+        Pipeline files are checked on load (schema.py); this guards configurations made in code."""
+        from tavf_mapkit.pipeline.schema import check_value, metres
 
         value = self.section(section).get(key, default)
-        number = float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else math.nan
-        if not (number > 0 and math.isfinite(number)):
-            raise InputError(f"[{section}] {key} must be a positive number of metres, not {value!r}")
-        return number
+        check_value(section, key, value, metres())
+        return float(value)
 
     def opendrive(self):
         """The build's OpenDRIVE (artifact ``xodr``) loaded; a StageError when it is unreadable."""
