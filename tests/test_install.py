@@ -45,7 +45,8 @@ def fresh_venv(folder: Path) -> Path:
     """A new venv that imports the dependencies from the current environment without downloading them: a
     .pth file lists this interpreter's site-packages (``--system-site-packages`` would reach the base
     interpreter's, not those of a venv we run in). Its own site-packages comes first, so the installed
-    wheel is what it imports; .pth files of the listed folders (the checkout's editable finder) are not run."""
+    wheel is what it imports; .pth files of the listed folders (the checkout's editable finder) are not
+    run."""
     run([sys.executable, "-m", "venv", "--without-pip", folder], cwd=folder.parent)
     python = folder / "bin" / "python"
     purelib = run([python, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
@@ -75,13 +76,14 @@ def test_the_wheel_installs_and_builds_the_sample_from_another_folder(tmp_path):
     result = run([mapkit, "build", SAMPLE, "-o", "out"], cwd=elsewhere)
     assert "built " in result.stdout and "Traceback" not in result.stderr
     folder = elsewhere / "out"
-    for relative in ("out.xodr", "out.net.xml", "source/out.osm", "report/summary.json", "logs/netconvert.log",
-                     "mesh/mesh.json", "mesh/surface.npz", "mesh/solids.npz", "report/mesh_preview.png",
-                     "collision/world.json", "report/check.json"):
+    for relative in ("out.xodr", "out.net.xml", "source/out.osm", "report/summary.json", "report/check.json",
+                     "logs/netconvert.log", "mesh/mesh.json", "mesh/surface.npz", "mesh/solids.npz",
+                     "report/mesh_preview.png", "collision/world.json"):
         assert (folder / relative).is_file(), relative
     manifest = json.loads((folder / "manifest.json").read_text())
-    assert [(stage["name"], stage["status"]) for stage in manifest["stages"]] == [
-        (name, "ran") for name in ("extract", "netconvert", "opendrive", "mesh", "collision", "check", "report")]
+    stages = ("extract", "netconvert", "opendrive", "mesh", "collision", "check", "report")
+    assert [(record["name"], record["status"]) for record in manifest["stages"]] == \
+        [(name, "ran") for name in stages]
     assert manifest["stages"][1]["options"]["profile"] == "carla"
     assert sorted(p.name for p in elsewhere.iterdir()) == [".out.lock", "out"]  # no staging folder left
 
