@@ -50,7 +50,7 @@ SAMPLE = REPO / "sample_data" / "tavf_synthetic.osm"
      "gnss_median_distance_m, gnss_p95_distance_m, reference_median_offset_m, reference_min_coverage, "
      "reference_p95_offset_m)"),
     ('[opendrive]\neps = 0.1\n', "[opendrive] unknown key 'eps' (known: none)"),
-    ('[pipeline]\nstage = ["extract"]\n', "[pipeline] unknown key 'stage' (known: name, stages)"),
+    ('[extract]\nroute = true\n', "[extract] unknown key 'route' (known: routes)"),
     ('[mehs]\neps = 0.1\n',
      "[mehs] is not a table of a pipeline file (known: area, check, collision, extract, mesh, netconvert, "
      "opendrive, pipeline, report)"),
