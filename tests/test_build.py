@@ -302,8 +302,67 @@ def test_a_killed_builds_staging_folder_is_cleaned_up_by_the_next_build(existing
     stale = existing_build.parent / ".sample.staging-dead"
     stale.mkdir()
     (stale / "junk").write_text("left by a SIGKILLed build")
-    assert build(SAMPLE, "-o", existing_build, "-q").exit_code == 0
+    result = build(SAMPLE, "-o", existing_build, "-q")
+    assert result.exit_code == 0
+    assert result.stderr == (f"note: recovered from an earlier build of {existing_build} that was killed: "
+                             "removed its unfinished staging folder .sample.staging-dead\n")
     assert not stale.exists()
+
+
+def start_mapkit(*args) -> subprocess.Popen:
+    """A real `mapkit` process (what a user runs and may kill), not an in-process CliRunner call."""
+    return subprocess.Popen([sys.executable, "-m", "tavf_mapkit.cli.main", *map(str, args)], cwd=REPO,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def wait_for_staging(parent: Path, process: subprocess.Popen, artifact: str) -> Path:
+    """The running build's staging folder, once ``artifact`` is in it (the build is past that stage)."""
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and process.poll() is None:
+        found = [folder for folder in parent.glob(".sample.staging-*") if (folder / artifact).exists()]
+        if found:
+            return found[0]
+        time.sleep(0.02)
+    raise AssertionError(f"no staging folder with {artifact}: {process.communicate()}")
+
+
+def test_a_sigkilled_build_is_recovered_by_the_next_run_with_one_line(existing_build):
+    import socket
+
+    before = snapshot(existing_build)
+    process = start_mapkit("build", SAMPLE, "-o", existing_build, "--force", "-q")
+    staging = wait_for_staging(existing_build.parent, process, "sample.xodr")  # netconvert done, mesh next
+    process.kill()
+    assert process.wait(timeout=30) == -signal.SIGKILL
+    lock = existing_build.parent / ".sample.lock"
+    assert staging.is_dir() and json.loads(lock.read_text())["pid"] == process.pid  # what the kill left
+    assert snapshot(existing_build) == before
+
+    result = build(SAMPLE, "-o", existing_build, "-q")
+    assert result.exit_code == 0, result.output
+    (line,) = result.stderr.splitlines()
+    assert line.startswith(f"note: recovered from an earlier build of {existing_build} that was killed "
+                           f"(pid {process.pid} on {socket.gethostname()}, started ")
+    assert line.endswith(f"): removed its unfinished staging folder {staging.name}")
+    assert not leftovers(existing_build.parent) and lock.read_text() == ""
+    assert all(status == "unchanged" for status in statuses(existing_build).values())  # the old build, intact
+    assert build(SAMPLE, "-o", existing_build, "-q").stderr == ""  # recovered once, not on every run
+
+
+def test_a_live_concurrent_build_is_still_refused(tmp_path):
+    import socket
+
+    target = tmp_path / "sample"
+    process = start_mapkit("build", SAMPLE, "-o", target, "-q")
+    wait_for_staging(tmp_path, process, "source")
+    result = build(SAMPLE, "-o", target, "-q")
+    assert result.exit_code == 1
+    assert result.stderr.startswith(f"Error: {target}: another mapkit build (pid {process.pid} on "
+                                    f"{socket.gethostname()}, started ")
+    assert result.stderr.endswith(") is writing this build folder\n") and len(result.stderr.splitlines()) == 1
+    _, stderr = process.communicate(timeout=120)
+    assert process.returncode == 0 and stderr == ""  # the refused build touched nothing of the live one
+    assert all(status == "ran" for status in statuses(target).values()) and not leftovers(tmp_path)
 
 
 # --- bad input and output -----------------------------------------------------------------------------

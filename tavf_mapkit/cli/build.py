@@ -66,7 +66,8 @@ def build(input_path: Path, pipeline_file: Path | None, bbox, polygon: Path | No
             click.echo(line, err=True)
 
     command = shlex.join(["mapkit", *sys.argv[1:]]) if sys.argv and sys.argv[0].endswith("mapkit") else None
-    result = run_build(input_path, config, output, force=force, progress=progress, command=command)
+    result = run_build(input_path, config, output, force=force, progress=progress, command=command,
+                       notice=lambda line: click.echo(line, err=True))
     if as_json:
         click.echo(json.dumps(_json_summary(result), indent=2))
     else:

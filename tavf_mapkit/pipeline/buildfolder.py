@@ -5,6 +5,13 @@ the new folder replaces the old one in one step (renameat2 RENAME_EXCHANGE where
 otherwise two renames with signals blocked in between) and the old one is removed. On any failure --
 a stage error, KeyboardInterrupt, SIGTERM -- the staging folder is removed and the existing build is
 left exactly as it was. A lock file keeps two builds from writing the same target at once.
+
+A build killed outright (SIGKILL, the kernel's out-of-memory killer, power loss) runs no cleanup: it leaves
+its staging folder, and its record in the lock file. The lock itself is an flock, which the kernel releases
+when the holder dies, so a dead build never blocks the next one; the record (pid, host, start time) written
+into the lock file while it is held, and cleared on a normal exit, is how the next build knows that the
+previous one was killed. That build removes the leftovers and says so in one line; a live build still holds
+the flock, so a concurrent build is refused, naming the holder.
 """
 
 from __future__ import annotations
@@ -13,10 +20,14 @@ import ctypes
 import errno
 import fcntl
 import os
+import json
 import shutil
 import signal
+import socket
 import tempfile
 import threading
+import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Self
 
@@ -34,11 +45,12 @@ class BuildInterrupted(KeyboardInterrupt):
 class BuildFolder:
     """``with BuildFolder(target) as folder: ...write into folder.staging...; folder.commit()``."""
 
-    def __init__(self, target: str | Path) -> None:
+    def __init__(self, target: str | Path, notify: Callable[[str], None] | None = None) -> None:
         self.target = Path(target).absolute()
         self.parent = self.target.parent
         self.staging: Path | None = None
         self.committed = False
+        self._notify = notify or (lambda line: None)  # one line for the user (recovery from a killed build)
         self._lock_handle = None
         self._previous_sigterm = None
 
@@ -54,9 +66,9 @@ class BuildFolder:
         except OSError as error:
             raise InputError(f"cannot create the build folder's parent: {error.strerror}",
                              file=str(self.parent)) from None
-        self._lock()
+        killed = self._lock()
         try:
-            self._remove_leftovers()
+            self._recover(killed)
             self.staging = Path(tempfile.mkdtemp(prefix=f".{self.target.name}.staging-", dir=self.parent))
             self.staging.chmod(0o777 & ~_umask())  # mkdtemp makes it private; a build folder is not
         except OSError as error:
@@ -111,32 +123,68 @@ class BuildFolder:
                     raise InputError("is not a folder", file=str(ancestor))
                 break
 
-    def _lock(self) -> None:
-        lock_path = self.parent / f".{self.target.name}.lock"
+    @property
+    def lock_path(self) -> Path:
+        return self.parent / f".{self.target.name}.lock"
+
+    def _lock(self) -> dict | None:
+        """Take the lock and write our record into it; return the record a killed build left, if any."""
         try:
-            self._lock_handle = open(lock_path, "a+")  # noqa: SIM115 -- held open until _unlock
+            self._lock_handle = open(self.lock_path, "a+")  # noqa: SIM115 -- held open until _unlock
         except OSError as error:
             raise InputError(f"cannot write the build folder: {error.strerror}",
                              file=str(self.parent)) from None
         try:
             fcntl.flock(self._lock_handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
+            holder = _read_record(self._lock_handle)
             self._lock_handle.close()
             self._lock_handle = None
-            raise StageError("another mapkit build is writing this build folder",
+            raise StageError(f"another mapkit build{_describe(holder)} is writing this build folder",
                              file=str(self.target)) from None
+        # we hold the flock, so whoever wrote a record here is dead: a normal exit clears it
+        killed = _read_record(self._lock_handle)
+        record = {"pid": os.getpid(), "host": socket.gethostname(),
+                  "started": time.strftime("%Y-%m-%d %H:%M:%S")}
+        try:
+            self._lock_handle.truncate(0)
+            self._lock_handle.write(json.dumps(record) + "\n")
+            self._lock_handle.flush()
+        except OSError as error:
+            self._unlock()
+            raise InputError(f"cannot write the build folder: {error.strerror}",
+                             file=str(self.parent)) from None
+        return killed
 
     def _unlock(self) -> None:
         if self._lock_handle is not None:
+            try:
+                self._lock_handle.truncate(0)  # no record: this build ended, it was not killed
+            except OSError:
+                pass
             fcntl.flock(self._lock_handle, fcntl.LOCK_UN)
             self._lock_handle.close()
             self._lock_handle = None
             # the lock file stays: unlinking it would let a waiting build lock a file nobody else sees
 
-    def _remove_leftovers(self) -> None:
-        """Staging folders of killed builds (SIGKILL, power loss); we hold the lock, so none is live."""
-        for leftover in self.parent.glob(f".{self.target.name}.staging-*"):
-            shutil.rmtree(leftover, ignore_errors=True)
+    def _recover(self, killed: dict | None) -> None:
+        """Remove the staging folders of killed builds (we hold the lock, so none is live) and say so."""
+        done = []
+        leftovers = sorted(self.parent.glob(f".{self.target.name}.staging-*"))
+        for leftover in leftovers:
+            # killed between the two renames of _swap's fallback: the previous build waits beside the target
+            previous_build = leftover.name.endswith("-old") and (leftover / MANIFEST_NAME).is_file()
+            if previous_build and not self.target.exists():
+                os.rename(leftover, self.target)
+                done.append(f"put the previous build back from {leftover.name}")
+        for leftover in leftovers:
+            if leftover.exists():
+                shutil.rmtree(leftover, ignore_errors=True)
+                done.append(f"removed its unfinished staging folder {leftover.name}")
+        if killed is None and not done:
+            return
+        self._notify(f"note: recovered from an earlier build of {self.target} that was killed"
+                     f"{_describe(killed)}: {'; '.join(done) or 'nothing was left to clean up'}")
 
     def _catch_sigterm(self) -> None:
         if threading.current_thread() is not threading.main_thread():
@@ -151,6 +199,22 @@ class BuildFolder:
         if self._previous_sigterm is not None:
             signal.signal(signal.SIGTERM, self._previous_sigterm)
             self._previous_sigterm = None
+
+
+def _read_record(handle) -> dict | None:
+    """The record in a lock file (None if empty or unreadable: a build of an older mapkit wrote none)."""
+    try:
+        handle.seek(0)
+        record = json.loads(handle.read() or "null")
+    except (OSError, ValueError):
+        return None
+    return record if isinstance(record, dict) else None
+
+
+def _describe(record: dict | None) -> str:
+    if not record:
+        return ""
+    return f" (pid {record.get('pid')} on {record.get('host')}, started {record.get('started')})"
 
 
 def _umask() -> int:

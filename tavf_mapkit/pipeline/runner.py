@@ -72,8 +72,11 @@ def default_build_name(input_path: Path, config: PipelineConfig) -> str:
 
 def run_build(input_path: str | Path, config: PipelineConfig, output: str | Path | None = None, *,
               force: bool = False, progress: Callable[[str], None] | None = None,
-              command: str | None = None) -> BuildResult:
-    """Build ``input_path`` with ``config`` into ``output`` (default build/NAME); return the manifest."""
+              command: str | None = None, notice: Callable[[str], None] | None = None) -> BuildResult:
+    """Build ``input_path`` with ``config`` into ``output`` (default build/NAME); return the manifest.
+
+    ``progress`` gets a line per stage; ``notice`` the lines a user must see even without progress (the
+    recovery from a killed build), by default also ``progress``."""
     started = time.perf_counter()
     progress = progress or (lambda line: None)
     input_path = Path(input_path)
@@ -88,7 +91,7 @@ def run_build(input_path: str | Path, config: PipelineConfig, output: str | Path
     input_record = {"role": "input", "path": str(input_path.resolve()), "kind": kind,
                     "sha256": file_sha256(input_path), "bytes": input_path.stat().st_size}
 
-    with BuildFolder(target) as folder:
+    with BuildFolder(target, notify=notice or progress) as folder:
         previous = None if force or folder.existing is None else read_manifest(folder.target)
         context = BuildContext(name=name, folder=folder.staging, input_path=input_path.resolve(),
                                input_kind=kind, config=config, artifacts={"input": input_path.resolve()},
