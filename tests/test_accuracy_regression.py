@@ -6,6 +6,8 @@ A metric worse than its baseline beyond the stated tolerance fails. Baselines ch
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 from conftest import shared_path
 
@@ -27,6 +29,14 @@ def test_baseline_file_covers_every_measurement_with_tolerances():
         assert set(entry["metrics"]) == set(MEASUREMENTS[name].defaults), name
         for spec in entry["metrics"].values():
             assert spec["tolerance"] >= 0 and spec["better"] in ("lower", "higher", "equal")
+
+
+def test_the_baselines_read_and_refreshed_are_the_checkouts_tracked_file():
+    # package data (so a wheel has them), found through importlib.resources: in a development checkout that
+    # must be the file git tracks, or `mapkit baseline refresh` would write where nobody commits
+    repo = Path(__file__).resolve().parents[1]
+    assert BASELINE_FILE == repo / "tavf_mapkit" / "data" / "baselines" / "accuracy.json"
+    assert BASELINE_FILE.is_file()
 
 
 @pytest.mark.slow
