@@ -43,7 +43,7 @@ class DrivingSide:
 
     side: str  # "left" or "right"
     source: str  # "option", "location", "opendrive", "sumo-net" or "default"
-    reason: str
+    why: str
     country: str | None = None
     timezone: str | None = None
 
@@ -51,8 +51,12 @@ class DrivingSide:
     def lefthand(self) -> bool:
         return self.side == "left"
 
+    @property
+    def reason(self) -> str:
+        return f"{self.side}-hand traffic: {self.why}"
+
     def to_dict(self) -> dict:
-        record = {"side": self.side, "source": self.source, "reason": self.reason}
+        record = {"side": self.side, "source": self.source, "why": self.why, "reason": self.reason}
         if self.country is not None:
             record["country"] = self.country
         if self.timezone is not None:
@@ -61,7 +65,7 @@ class DrivingSide:
 
     @staticmethod
     def from_dict(record: dict) -> DrivingSide:
-        return DrivingSide(record["side"], record["source"], record["reason"], record.get("country"),
+        return DrivingSide(record["side"], record["source"], record["why"], record.get("country"),
                            record.get("timezone"))
 
 
@@ -108,11 +112,10 @@ def side_at(lon: float, lat: float) -> DrivingSide:
     country, zone = country_at(lon, lat)
     where = f"({lon:.5f}, {lat:.5f})"
     if country is None:
-        return DrivingSide("right", "location", f"map centre {where} is in no country ({zone or 'no zone'}): "
-                                                "right-hand traffic", None, zone)
+        return DrivingSide("right", "location", f"the map centre {where} is in no country ({zone or 'no zone'})",
+                           None, zone)
     side = "left" if country in LEFT_HAND_COUNTRIES else "right"
-    return DrivingSide(side, "location", f"map centre {where} is in {country} ({zone}): {side}-hand traffic",
-                       country, zone)
+    return DrivingSide(side, "location", f"the map centre {where} is in {country} ({zone})", country, zone)
 
 
 def choose(option: str, detected: DrivingSide | None) -> DrivingSide:
@@ -122,7 +125,7 @@ def choose(option: str, detected: DrivingSide | None) -> DrivingSide:
         return DrivingSide(option, "option", f"driving_side = {option} (given)")
     if detected is not None:
         return detected
-    return DrivingSide("right", "default", "no location known: right-hand traffic")
+    return DrivingSide("right", "default", "no location known")
 
 
 def opendrive_side(odr) -> DrivingSide:
@@ -132,7 +135,7 @@ def opendrive_side(odr) -> DrivingSide:
     count = sum(1 for road in odr.roads if road.rule == "LHT")
     side = "left" if total > 0 and left > 0.5 * total else "right"
     if count == 0:
-        reason = "no road has rule=\"LHT\": right-hand traffic (OpenDRIVE's default)"
+        why = "no road has rule=\"LHT\" (OpenDRIVE's default)"
     else:
-        reason = f"{count} of {len(odr.roads)} roads have rule=\"LHT\": {side}-hand traffic"
-    return DrivingSide(side, "opendrive", reason)
+        why = f"{count} of {len(odr.roads)} roads have rule=\"LHT\""
+    return DrivingSide(side, "opendrive", why)

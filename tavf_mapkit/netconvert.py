@@ -248,13 +248,15 @@ class Conversion:
 def convert(source: Path, kind: str, net: Path, xodr: Path, log: Path, profile: Profile, *,
             crs: str = "tmerc", centre: tuple[float, float] | None = None,
             clip_bbox: tuple[float, float, float, float] | None = None,
-            cwd: Path | None = None) -> Conversion:
+            cwd: Path | None = None, lefthand: bool | None = None) -> Conversion:
     """Run netconvert on ``source`` (kind "osm" or "sumo-net") and write ``net`` and ``xodr``.
 
     ``centre`` (lon, lat) is where the transverse Mercator of an OSM input is centred (the extract's bbox
     centre); a SUMO network is centred on its own nodes. ``clip_bbox`` (W,S,E,N) keeps only the edges of a
     SUMO network inside it (an OSM input is clipped by the extract stage instead). Relative paths are
     relative to ``cwd``, where netconvert runs, so the commands in the log name files of the build folder.
+    ``lefthand`` passes ``--lefthand`` (left-hand traffic) explicitly; None leaves netconvert's default (right-hand
+    for OSM, a SUMO network's own ``lefthand`` attribute, which a re-projection through plain XML would lose).
     """
     if crs not in CRS_CHOICES:
         raise InputError(f"unknown --crs {crs!r} (choose {', '.join(CRS_CHOICES)})")
@@ -267,6 +269,8 @@ def convert(source: Path, kind: str, net: Path, xodr: Path, log: Path, profile: 
         log_file.write(f"# {conversion.version}\n")
         outputs = ["--output-file", str(net), "--opendrive-output", str(xodr)]
         profile_arguments = option_arguments(profile.options_for(kind))
+        if lefthand is not None:
+            profile_arguments.append(f"--lefthand={'true' if lefthand else 'false'}")
         if kind == "osm":
             projection = _osm_projection(crs, centre)
             conversion.projection = projection[1] if len(projection) > 1 else "UTM zone of the data"

@@ -40,6 +40,21 @@ class Location:
         return {"netOffset": list(self.net_offset), "convBoundary": list(self.conv_boundary),
                 "origBoundary": list(self.orig_boundary), "projParameter": self.proj}
 
+    def centre_wgs84(self) -> tuple[float, float] | None:
+        """(lon, lat) of the middle of the network's extent; None when it is not georeferenced."""
+        if not self.georeferenced:
+            return None
+        import pyproj
+
+        west, south, east, north = self.conv_boundary
+        x = 0.5 * (west + east) - self.net_offset[0]  # net = projected + netOffset
+        y = 0.5 * (south + north) - self.net_offset[1]
+        try:
+            lon, lat = pyproj.Proj(self.proj)(x, y, inverse=True)
+        except (pyproj.exceptions.CRSError, ValueError):
+            return None
+        return (round(lon, 7), round(lat, 7)) if abs(lon) <= 180 and abs(lat) <= 90 else None
+
 
 def read_net_bytes(path: str | Path) -> bytes:
     """The uncompressed XML of a SUMO network; unreadable or corrupt files become InputErrors."""
@@ -70,12 +85,14 @@ def check_sumo_net(path: str | Path) -> dict:
               "connections": 0, "roundabouts": 0}
     location = None
     root_seen = False
+    lefthand = False
     for _event, element in iterparse_safe(source, events=("start",)):
         if not root_seen:
             root_seen = True
             if element.tag != "net":
                 raise InputError(f"expected a SUMO network (<net>), found <{element.tag}>", file=name,
                                  line=element.sourceline)
+            lefthand = element.get("lefthand", "false").lower() == "true"
             continue
         tag = element.tag
         if tag == "edge":
@@ -94,7 +111,9 @@ def check_sumo_net(path: str | Path) -> dict:
             location = _location(element, name)
     if counts["edges"] == 0:
         raise InputError("the SUMO network has no edges", file=name)
-    return {**counts, "location": location.to_dict() if location else None}
+    centre = location.centre_wgs84() if location else None
+    return {**counts, "location": location.to_dict() if location else None, "lefthand": lefthand,
+            "centre_wgs84": list(centre) if centre else None}
 
 
 def read_location(path: str | Path) -> Location:

@@ -28,7 +28,7 @@ def test_lookup_of_well_known_places(place, lon, lat, country, side):
     assert country_at(lon, lat)[0] == country, place
     found = side_at(lon, lat)
     assert found.side == side and found.country == country and found.source == "location"
-    assert country in found.reason and f"{side}-hand" in found.reason
+    assert country in found.reason and found.reason.startswith(f"{side}-hand traffic: the map centre")
 
 
 def test_open_sea_is_right_hand():

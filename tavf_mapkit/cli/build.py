@@ -1,4 +1,4 @@
-"""``mapkit build``: OSM or a SUMO network -> a build folder (OpenDRIVE, SUMO net, meshes, report)."""
+"""``mapkit build``: OSM, a SUMO network or OpenDRIVE -> a build folder (OpenDRIVE, SUMO net, meshes, report)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import click
 from tavf_mapkit.cli.options import area_from, bbox_option, json_option, polygon_option
 
 
-@click.command(short_help="Build a simulation world from OSM or a SUMO network.")
+@click.command(short_help="Build a simulation world from OSM, a SUMO network or OpenDRIVE.")
 @click.argument("input_path", metavar="INPUT", type=click.Path(path_type=Path))
 @click.option("--pipeline", "pipeline_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
               metavar="PIPELINE.toml", help="Pipeline file (stages, area, profile, stage options).")
@@ -22,23 +22,30 @@ from tavf_mapkit.cli.options import area_from, bbox_option, json_option, polygon
               help="netconvert option profile (default: the pipeline's, else carla).")
 @click.option("--crs", type=click.Choice(["tmerc", "utm", "keep"]), default=None,
               help="Projection: tmerc centred on the data (default), utm, or keep a SUMO network's own.")
+@click.option("--driving-side", type=click.Choice(["auto", "left", "right"], case_sensitive=False), default=None,
+              help="Side traffic keeps to. auto (default): from the country the map lies in (offline lookup), a "
+                   "SUMO network's lefthand flag, or an OpenDRIVE file's road rule.")
 @click.option("-o", "--output", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Build folder (default: build/NAME, NAME from the pipeline or the input file).")
 @click.option("--force", is_flag=True, help="Rerun every stage even if its inputs and options are unchanged.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress lines.")
 @json_option
 def build(input_path: Path, pipeline_file: Path | None, bbox, polygon: Path | None, profile: str | None,
-          crs: str | None, output: Path | None, force: bool, quiet: bool, as_json: bool) -> None:
-    """Build a driving-simulation world from OSM or a SUMO network.
+          crs: str | None, driving_side: str | None, output: Path | None, force: bool, quiet: bool,
+          as_json: bool) -> None:
+    """Build a driving-simulation world from OSM, a SUMO network or an OpenDRIVE file.
 
     \b
     $ mapkit build sample_data/tavf_synthetic.osm
     $ mapkit build hamburg.osm.pbf --pipeline pipelines/tavf.toml -o build/tavf
     $ mapkit build network.net.xml.gz --profile full --crs keep --json
+    $ mapkit build Town04.xodr -o build/town04
+    $ mapkit build london.osm.pbf --driving-side left
 
     \b
     Stages: extract -> netconvert -> opendrive -> mesh -> collision -> check -> report
-    (stages not installed yet are skipped with a note). The build folder holds NAME.xodr,
+    (stages not installed yet are skipped with a note; an OpenDRIVE input starts at opendrive,
+    and its build has no SUMO network). The build folder holds NAME.xodr,
     NAME.net.xml, mesh/, collision/, report/, logs/ and manifest.json (docs/build-folder.md).
     It is built next to the target and swapped in when complete: a failed or interrupted build
     leaves an existing build untouched. Stages whose inputs and options did not change since the
@@ -52,14 +59,17 @@ def build(input_path: Path, pipeline_file: Path | None, bbox, polygon: Path | No
     from tavf_mapkit.pipeline.summary import render_summary
 
     area = area_from(bbox, polygon)
+    side = driving_side.lower() if driving_side else None
     config = load_pipeline(pipeline_file)
     if area is not None:
         if area.polygon is not None:
-            config = config.with_overrides(polygon=polygon, profile=profile, crs=crs)
+            config = config.with_overrides(polygon=polygon, profile=profile, crs=crs,
+                                          driving_side=side)
         else:
-            config = config.with_overrides(bbox=area.bbox, profile=profile, crs=crs)
+            config = config.with_overrides(bbox=area.bbox, profile=profile, crs=crs,
+                                          driving_side=side)
     else:
-        config = config.with_overrides(profile=profile, crs=crs)
+        config = config.with_overrides(profile=profile, crs=crs, driving_side=side)
 
     def progress(line: str) -> None:
         if not quiet:

@@ -28,6 +28,7 @@ class PipelineConfig:
     name: str | None = None
     stages: tuple[str, ...] = DEFAULT_STAGES
     sections: dict = field(default_factory=dict)
+    driving_side: str = "auto"  # [pipeline] driving_side: left, right, or auto (tavf_mapkit/drivingside.py)
 
     def section(self, name: str) -> dict:
         """The options of one table (a copy; empty if the pipeline has none)."""
@@ -42,7 +43,7 @@ class PipelineConfig:
         return found
 
     def with_overrides(self, *, bbox=None, polygon: Path | None = None, profile: str | None = None,
-                       crs: str | None = None) -> PipelineConfig:
+                       crs: str | None = None, driving_side: str | None = None) -> PipelineConfig:
         """A copy with command-line options applied (an area option replaces the pipeline's area)."""
         sections = copy.deepcopy(self.sections)
         if bbox is not None or polygon is not None:
@@ -52,7 +53,8 @@ class PipelineConfig:
             netconvert["profile"] = profile
         if crs is not None:
             netconvert["crs"] = crs
-        config = PipelineConfig(self.file, self.name, self.stages, sections)
+        config = PipelineConfig(self.file, self.name, self.stages, sections,
+                                driving_side if driving_side is not None else self.driving_side)
         config.validate()
         return config
 
@@ -63,6 +65,7 @@ class PipelineConfig:
 
         where = str(self.file) if self.file else None
         check_tables(self.sections, file=where, stage_names=self.stages)
+        check_tables({"pipeline": {"driving_side": self.driving_side}}, file=where)
         area = self.sections.get("area", {})
         if "bbox" in area and "polygon_path" in area:
             raise InputError("[area] has both bbox and polygon_path; give one", file=where)
@@ -76,7 +79,7 @@ class PipelineConfig:
 
     def to_dict(self) -> dict:
         return {"file": str(self.file) if self.file else None, "name": self.name, "stages": list(self.stages),
-                "sections": _jsonable(self.sections)}
+                "driving_side": self.driving_side, "sections": _jsonable(self.sections)}
 
 
 def load_pipeline(path: str | Path | None) -> PipelineConfig:
@@ -101,7 +104,8 @@ def load_pipeline(path: str | Path | None) -> PipelineConfig:
     check_tables({"pipeline": head}, file=str(path.resolve()))  # named as validate() names it
     stages = head.get("stages", list(DEFAULT_STAGES))
     sections = _resolve_paths(data, path.resolve().parent)
-    config = PipelineConfig(path.resolve(), head.get("name") or path.stem, tuple(stages), sections)
+    config = PipelineConfig(path.resolve(), head.get("name") or path.stem, tuple(stages), sections,
+                            head.get("driving_side", "auto"))
     config.validate()
     return config
 

@@ -13,8 +13,8 @@ from tavf_mapkit.pipeline.config import PipelineConfig
 class BuildContext:
     """Shared state of one build. Artifacts are absolute paths; ``artifacts["input"]`` is the user's file.
 
-    ``input_kind`` is "osm" or "sumo-net". ``facts`` maps a stage name to the facts it reported (also for
-    stages reused from the previous build), so a later stage can read e.g. ``facts["extract"]["centre"]``.
+    ``input_kind`` is "osm", "sumo-net" or "opendrive". ``facts`` maps a stage name to the facts it reported
+    (also for stages reused from the previous build), so a later stage can read ``facts["extract"]["centre"]``.
     """
 
     name: str
@@ -48,6 +48,8 @@ class BuildContext:
         try:
             return load_opendrive(self.artifacts["xodr"])
         except InputError as error:
+            if self.input_kind == "opendrive":
+                raise  # the user's own map: its defect, named as such (exit 2)
             raise StageError(f"netconvert's OpenDRIVE is unreadable: {error}") from None
 
     def osm_source(self) -> Path | None:

@@ -40,6 +40,8 @@ from tavf_mapkit.pipeline.stages import get_stage, unavailable_modules
 from tavf_mapkit.sumonet import SUMO_NET_SUFFIXES, is_sumo_net
 
 EXIT_CODES = {0: "ok", 1: "a stage failed", 2: "bad input or options", 130: "interrupted"}
+OPENDRIVE_SUFFIXES = (".xodr",)
+INPUT_KINDS = {"osm": "OSM", "sumo-net": "SUMO network", "opendrive": "OpenDRIVE"}
 
 
 @dataclass(frozen=True)
@@ -49,13 +51,16 @@ class BuildResult:
 
 
 def input_kind(path: Path) -> str:
-    """"osm" or "sumo-net" from the file name; anything else is refused."""
+    """"osm", "sumo-net" or "opendrive" from the file name; anything else is refused."""
     if is_osm_file(path):
         return "osm"
     if is_sumo_net(path):
         return "sumo-net"
-    raise InputError(f"unknown input type: expected OSM ({', '.join(OSM_SUFFIXES)}) or a SUMO network "
-                     f"({', '.join(SUMO_NET_SUFFIXES)})", file=str(path))
+    if str(path).lower().endswith(OPENDRIVE_SUFFIXES):
+        return "opendrive"
+    raise InputError(f"unknown input type: expected OSM ({', '.join(OSM_SUFFIXES)}), a SUMO network "
+                     f"({', '.join(SUMO_NET_SUFFIXES)}) or OpenDRIVE ({', '.join(OPENDRIVE_SUFFIXES)})",
+                     file=str(path))
 
 
 def default_build_name(input_path: Path, config: PipelineConfig) -> str:
@@ -63,7 +68,7 @@ def default_build_name(input_path: Path, config: PipelineConfig) -> str:
     if config.file is not None and config.name:
         return config.name
     name = input_path.name
-    for suffix in sorted((*OSM_SUFFIXES, *SUMO_NET_SUFFIXES), key=len, reverse=True):
+    for suffix in sorted((*OSM_SUFFIXES, *SUMO_NET_SUFFIXES, *OPENDRIVE_SUFFIXES), key=len, reverse=True):
         if name.lower().endswith(suffix):
             name = name[: -len(suffix)]
             break
@@ -97,6 +102,11 @@ def run_build(input_path: str | Path, config: PipelineConfig, output: str | Path
                                input_kind=kind, config=config, artifacts={"input": input_path.resolve()},
                                notify=progress)
         hashes = {"input": input_record["sha256"]}
+        if kind == "opendrive":
+            # an OpenDRIVE input is the map itself: the stages after netconvert start from it (the opendrive
+            # stage puts the build's copy, NAME.xodr, in its place)
+            context.artifacts["xodr"] = input_path.resolve()
+            hashes["xodr"] = input_record["sha256"]
         records = []
         for index, stage_name in enumerate(config.stages, 1):
             record = _run_stage(stage_name, context, hashes, previous, folder.target, progress,
@@ -117,6 +127,10 @@ def _run_stage(stage_name: str, context: BuildContext, hashes: dict, previous: d
         note = f"stage {stage_name} not available" + (f": {reason}" if reason else "")
         progress(f"{counter} {stage_name}: {note}")
         return {"name": stage_name, "status": "unavailable", "note": note}
+    if context.input_kind not in stage.input_kinds:
+        note = f"not for {INPUT_KINDS.get(context.input_kind, context.input_kind)} input"
+        progress(f"{counter} {stage_name}: skipped, {note}")
+        return {"name": stage_name, "status": "skipped", "note": note}
     missing = [artifact for artifact in stage.inputs if artifact not in context.artifacts]
     if missing:
         note = f"needs {', '.join(missing)}, which no earlier stage made"
@@ -189,8 +203,12 @@ def _point_at_user_files(error: MapkitError, context: BuildContext) -> None:
     if not error.file:
         return
     path = Path(error.file)
+    path = path if path.is_absolute() else context.folder / path
+    if context.input_kind == "opendrive" and path == context.folder / f"{context.name}.xodr":
+        error.file = str(context.input_path)  # the build's copy of the user's map
+        return
     try:
-        (path if path.is_absolute() else context.folder / path).relative_to(context.folder / "source")
+        path.relative_to(context.folder / "source")
     except ValueError:
         return
     error.file = str(context.input_path)
@@ -231,9 +249,10 @@ def _manifest(name: str, input_record: dict, config: PipelineConfig, context: Bu
         from tavf_mapkit.netconvert import netconvert_version
 
         netconvert = netconvert_version()
-    georeference = None
+    georeference = driving_side = None
     for record in records:
         georeference = (record.get("facts") or {}).get("georeference") or georeference
+        driving_side = (record.get("facts") or {}).get("driving_side") or driving_side
     artifacts = {artifact: {**info, "stage": record["name"]}
                  for record in records for artifact, info in (record.get("outputs") or {}).items()}
     return {
@@ -250,6 +269,7 @@ def _manifest(name: str, input_record: dict, config: PipelineConfig, context: Bu
         "stages": records,
         "artifacts": artifacts,
         "georeference": georeference,
+        "driving_side": driving_side,
         "attribution": OSM_ATTRIBUTION if derived_from_osm(context.input_path, context.input_kind) else None,
         "seconds": round(time.perf_counter() - started, 4),
         "python_executable": sys.executable,

@@ -87,7 +87,7 @@ def _tables() -> dict[str, dict]:
     from tavf_mapkit.netconvert import CRS_CHOICES
 
     return {
-        "pipeline": {"name": text(), "stages": stage_list()},
+        "pipeline": {"name": text(), "stages": stage_list(), "driving_side": choice("auto", "left", "right")},
         "area": {"bbox": bbox(), "polygon_path": file_path()},
         "extract": {"routes": boolean()},
         "netconvert": {"profile": profile(), "crs": choice(*CRS_CHOICES)},

@@ -55,6 +55,8 @@ class Stage:
     name: ClassVar[str] = ""
     inputs: ClassVar[tuple[str, ...]] = ()           # artifacts that must exist before it can run
     optional_inputs: ClassVar[tuple[str, ...]] = ()  # artifacts it uses when an earlier stage made them
+    # the kinds of build input it works on (runner.INPUT_KINDS); for others the runner skips it with a note
+    input_kinds: ClassVar[tuple[str, ...]] = ("osm", "sumo-net", "opendrive")
     version: ClassVar[str] = "1"
     description: ClassVar[str] = ""
 

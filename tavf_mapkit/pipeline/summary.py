@@ -57,6 +57,9 @@ def build_report(context) -> dict:
             report.setdefault("stages", {})[name] = facts
             if facts.get("georeference"):
                 report["georeference"] = facts["georeference"]
+    for facts in context.facts.values():
+        if isinstance(facts, dict) and facts.get("driving_side"):
+            report["driving_side"] = facts["driving_side"]
     if "xodr" in context.artifacts:
         xodr = context.artifacts["xodr"]
         report["opendrive"] = {"file": xodr.name, **opendrive_counts(xodr)}
@@ -103,6 +106,9 @@ def report_text(report: dict) -> str:
             lines.append(f"    {count:4d} x {_shorten(kind, 88)}")
         for note in netconvert.get("notes") or []:
             lines.append(f"    note: {_shorten(note, 100)}")
+    side = report.get("driving_side")
+    if side:
+        lines.append(f"side    {side['reason']}")
     georeference = report.get("georeference")
     if georeference:
         offset = georeference.get("offset") or {}

@@ -2,6 +2,8 @@
 
 OSM input is re-written by osmium (clipped to the pipeline's area if it has one) into source/NAME.osm;
 a SUMO network is checked (well-formed, <net> root, no DOCTYPE) and copied to source/NAME.net.xml[.gz].
+Both record the driving side of the country under the input's centre (``location_driving_side``), which the
+netconvert stage uses unless told otherwise; looked up here, once per input, not on every rebuild.
 """
 
 from __future__ import annotations
@@ -16,7 +18,8 @@ from tavf_mapkit.pipeline.stages import Stage, StageOutput, register_stage
 @register_stage("extract")
 class ExtractStage(Stage):
     inputs = ("input",)
-    version = "1"
+    input_kinds = ("osm", "sumo-net")
+    version = "2"  # 2: location_driving_side (and a SUMO network's lefthand flag)
     description = "sanitise (and clip) the input with osmium; copy a SUMO network"
 
     def options(self, context: BuildContext) -> dict:
@@ -46,6 +49,7 @@ class ExtractStage(Stage):
         facts = summary.to_dict()
         facts["output"] = relative
         facts["kind"] = "osm"
+        facts["location_driving_side"] = _location_side(facts.get("centre"))
         return StageOutput(files={"source": relative}, facts=facts)
 
     def _sumo_net(self, context: BuildContext) -> StageOutput:
@@ -60,4 +64,12 @@ class ExtractStage(Stage):
         shutil.copyfile(context.input_path, context.output_path(relative))
         facts["kind"] = "sumo-net"
         facts["output"] = relative
+        facts["location_driving_side"] = _location_side(facts.get("centre_wgs84"))
         return StageOutput(files={"source": relative}, facts=facts)
+
+
+def _location_side(centre) -> dict | None:
+    """The driving side at the (lon, lat) centre of the input, None without a centre."""
+    from tavf_mapkit.drivingside import side_at
+
+    return side_at(*centre).to_dict() if centre else None

@@ -12,7 +12,8 @@ from tavf_mapkit.pipeline.stages import Stage, StageOutput, register_stage
 @register_stage("netconvert")
 class NetconvertStage(Stage):
     inputs = ("source",)
-    version = "2"  # 2: local (0, 0) at the projection origin (no <offset>)
+    input_kinds = ("osm", "sumo-net")
+    version = "3"  # 2: local (0, 0) at the projection origin (no <offset>); 3: driving side (--lefthand)
     description = "SUMO netconvert: road network and OpenDRIVE"
 
     def options(self, context: BuildContext) -> dict:
@@ -25,6 +26,7 @@ class NetconvertStage(Stage):
             "profile": profile.name,
             "profile_options": profile.options_for(context.input_kind),
             "crs": settings.get("crs", DEFAULT_CRS),
+            "driving_side": driving_side(context).side,
         }
         if context.input_kind == "sumo-net" and "bbox" in context.section("area"):
             options["clip_bbox"] = context.section("area")["bbox"]
@@ -39,12 +41,43 @@ class NetconvertStage(Stage):
         net, xodr, log = f"{context.name}.net.xml", f"{context.name}.xodr", "logs/netconvert.log"
         centre = context.facts.get("extract", {}).get("centre")
         clip = context.section("area").get("bbox") if context.input_kind == "sumo-net" else None
+        side = driving_side(context)
+        # OSM: netconvert's default is right-hand; a SUMO network: always say it, a re-projection through plain
+        # XML would lose the network's own lefthand flag
+        lefthand = side.lefthand if side.lefthand or context.input_kind == "sumo-net" else None
+        _note_disagreement(context, side)
         source = context.artifacts["source"].relative_to(context.folder)
         conversion = convert(source, context.input_kind, Path(net), Path(xodr), Path(log), profile,
                              crs=settings.get("crs", DEFAULT_CRS), centre=tuple(centre) if centre else None,
-                             clip_bbox=tuple(clip) if clip else None, cwd=context.folder)
+                             clip_bbox=tuple(clip) if clip else None, cwd=context.folder, lefthand=lefthand)
         facts = conversion.to_dict()
         facts.pop("seconds", None)  # timings live in the manifest's stage record, facts stay deterministic
         facts["profile"] = profile.name
         facts["georeference"] = describe_georeference(read_xodr_georeference(context.folder / xodr))
+        facts["driving_side"] = side.to_dict()
         return StageOutput(files={"net": net, "xodr": xodr, "netconvert_log": log}, facts=facts)
+
+
+def driving_side(context: BuildContext):
+    """The side to build for: [pipeline] driving_side / --driving-side when left or right; else (auto) a SUMO
+    network's own lefthand flag, or for OSM the country under the extract's centre."""
+    from tavf_mapkit.drivingside import DrivingSide, choose
+
+    extract = context.facts.get("extract", {})
+    if context.input_kind == "sumo-net":
+        lefthand = bool(extract.get("lefthand"))
+        detected = DrivingSide("left" if lefthand else "right", "sumo-net",
+                               'the SUMO network says lefthand="true"' if lefthand else
+                               'the SUMO network has no lefthand="true"')
+    else:
+        located = extract.get("location_driving_side")
+        detected = DrivingSide.from_dict(located) if located else None
+    return choose(context.config.driving_side, detected)
+
+
+def _note_disagreement(context: BuildContext, side) -> None:
+    """Tell the user when the side built differs from the country's (a SUMO network made for the other side,
+    or an override): not an error, but worth a line."""
+    located = context.facts.get("extract", {}).get("location_driving_side")
+    if located and located["side"] != side.side:
+        context.note(f"driving side: {side.reason}, although {located['why']}")
