@@ -94,7 +94,9 @@ def initial_breaks(arrays, max_segment: float):
     positive = b - a > 1e-9
     a, b, seg_section = a[positive], b[positive], seg_section[positive]
     # long straight segments are cut so that tiles and collision triangles stay reasonable
-    pieces = np.maximum(1, np.ceil((b - a) / max_segment).astype(np.int64))
+    pieces = np.maximum(1.0, np.ceil((b - a) / max_segment))
+    arrays.budget.check(arrays.section_road[seg_section], pieces, f"mesh segments of at most {max_segment:g} m")
+    pieces = pieces.astype(np.int64)
     k = np.arange(int(pieces.sum())) - np.repeat(np.cumsum(pieces) - pieces, pieces)
     length = np.repeat((b - a) / pieces, pieces)
     start = np.repeat(a, pieces) + k * length

@@ -99,11 +99,17 @@ def junction_footprints(odr, sampling, raised_rows: np.ndarray) -> dict[str, obj
     return out
 
 
-def triangulate_on_grid(footprint, cell: float) -> np.ndarray:
-    """(M, 3, 2) counter-clockwise triangles covering the footprint, none larger than a grid cell."""
+def triangulate_on_grid(footprint, cell: float, budget=None, road: int = 0) -> np.ndarray:
+    """(M, 3, 2) counter-clockwise triangles covering the footprint, none larger than a grid cell.
+
+    With a ``budget`` (the map's SampleBudget) the grid is checked against it first, charged to ``road``.
+    """
     west, south, east, north = footprint.bounds
     x0, y0 = np.floor(west / cell) * cell, np.floor(south / cell) * cell
-    nx, ny = max(1, int(np.ceil((east - x0) / cell))), max(1, int(np.ceil((north - y0) / cell)))
+    nx, ny = max(1.0, np.ceil((east - x0) / cell)), max(1.0, np.ceil((north - y0) / cell))
+    if budget is not None:
+        budget.check_total(nx * ny, f"a junction surface grid of {cell:g} m cells", road)
+    nx, ny = int(nx), int(ny)
     gx, gy = np.meshgrid(x0 + cell * np.arange(nx), y0 + cell * np.arange(ny))
     boxes = shapely.box(gx.ravel(), gy.ravel(), gx.ravel() + cell, gy.ravel() + cell)
     pieces = shapely.intersection(footprint, boxes)
@@ -280,8 +286,11 @@ def junction_surfaces(odr, sampling, lanes: LabelledMesh, raised_rows: np.ndarra
     """Surfaces of every junction. ``lanes`` are the connecting lanes' flat faces (for heights and labels)."""
     footprints = junction_footprints(odr, sampling, raised_rows)
     plans, face_sets, offset = [], [], 0
-    for footprint in footprints.values():
-        triangles = triangulate_on_grid(footprint, cell)
+    first_road = {}
+    for index, road in enumerate(odr.roads):
+        first_road.setdefault(road.junction, index)
+    for junction_id, footprint in footprints.items():
+        triangles = triangulate_on_grid(footprint, cell, odr.arrays.budget, first_road.get(junction_id, 0))
         if not len(triangles):
             continue
         flat = triangles.reshape(-1, 2)

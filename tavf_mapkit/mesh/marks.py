@@ -144,14 +144,17 @@ def _mark_lines(mark):
     return lines
 
 
-def _pieces(lines: _Lines):
+def _pieces(lines: _Lines, budget):
     """Expand dashed lines into one (line, a, b) piece per dash; solid lines are one piece."""
     start, end = np.array(lines.start), np.array(lines.end)
     length, space, phase = np.array(lines.length), np.array(lines.space), np.array(lines.phase)
     solid = length <= 0
     period = np.where(solid, 1.0, length + space)
-    first = np.where(solid, 0, np.floor((start - phase) / period)).astype(np.int64)
-    last = np.where(solid, 0, np.floor((end - phase) / period)).astype(np.int64)
+    first = np.where(solid, 0.0, np.floor((start - phase) / period))
+    last = np.where(solid, 0.0, np.floor((end - phase) / period))
+    # a dash of 1e-9 m (or a phase far from the line) is a broken file, not a million dashes
+    budget.check(np.array(lines.road), last - first + 1, "road-mark dashes")
+    first, last = first.astype(np.int64), last.astype(np.int64)
     count = last - first + 1
     line = np.repeat(np.arange(len(start)), count)
     k = np.repeat(first, count) + np.arange(len(line)) - np.repeat(np.cumsum(count) - count, count)
@@ -171,7 +174,7 @@ def road_marks(odr, eps: float = 0.05, samples: AdaptiveSamples | None = None) -
         return RoadMarkMesh.empty()
     if samples is None:
         samples = adaptive_samples(odr, eps)
-    line, a, b = _pieces(lines)
+    line, a, b = _pieces(lines, odr.arrays.budget)
     dots = np.array(lines.dots, dtype=bool)[line]
     ribbons = _ribbons(odr, lines, line[~dots], a[~dots], b[~dots], samples)
     boxes = _dots(odr, lines, line[dots], a[dots], b[dots])

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tavf_mapkit.opendrive.budget import SampleBudget
 from tavf_mapkit.opendrive.cubic import CubicProfile
 from tavf_mapkit.opendrive.geometry import GeometryTable
 
@@ -85,6 +86,7 @@ class NetworkArrays:
     lane_border: RecordTable
     lane_height_inner: RecordTable
     lane_height_outer: RecordTable
+    budget: SampleBudget  # what sampling this map may allocate (ask before allocating)
 
     @staticmethod
     def build(odr) -> "NetworkArrays":
@@ -136,6 +138,7 @@ class NetworkArrays:
             lane_border=RecordTable.build(borders, span, extend_first=True),
             lane_height_inner=RecordTable.build(heights_inner, span),
             lane_height_outer=RecordTable.build(heights_outer, span),
+            budget=SampleBudget.build(odr, table, lengths),
         )
 
     def reference(self, road: np.ndarray, s: np.ndarray):

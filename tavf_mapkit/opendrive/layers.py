@@ -32,6 +32,9 @@ def _lane_runs(sampling):
 
 
 def reference_line_features(odr, step: float):
+    lengths = odr.arrays.road_length
+    odr.arrays.budget.check(np.arange(len(lengths)), np.maximum(lengths, 0.0) / step + 2.0,
+                            f"the reference line every {step:g} m")
     for road in odr.roads:
         if road.length <= 0:
             continue

@@ -104,7 +104,9 @@ def section_samples(arrays, step: float, include_end: bool = True, sections: np.
     end = arrays.section_end[all_sections]
     keep = end - s0 > 0
     all_sections, s0, end = all_sections[keep], s0[keep], end[keep]
-    counts = np.floor((end - s0) / step + 1e-9).astype(np.int64) + 1
+    counts = np.floor((end - s0) / step + 1e-9) + 1
+    arrays.budget.check(arrays.section_road[all_sections], counts, f"sampling every {step:g} m")
+    counts = counts.astype(np.int64)
     starts = np.cumsum(counts) - counts
     total = int(counts.sum())
     k = np.arange(total) - np.repeat(starts, counts)
@@ -145,6 +147,7 @@ def sample_lanes_at(odr, sample_section: np.ndarray, sample_s: np.ndarray) -> La
         present, first = np.unique(sample_section, return_index=True)
         starts[present] = first
     lane_counts = counts[arrays.lane_section]
+    arrays.budget.check(arrays.section_road[arrays.lane_section], lane_counts, "lane samples")
     pair_lane = np.repeat(np.arange(len(arrays.lane_id)), lane_counts)
     lane_pair_starts = np.cumsum(lane_counts) - lane_counts
     within = np.arange(len(pair_lane)) - np.repeat(lane_pair_starts, lane_counts)

@@ -1,5 +1,5 @@
 """Geometry rules: reference-line contiguity, lengths, paramPoly3 arc length, lane widths and borders, profile
-jumps, zero lengths. Vectorised over the whole map (NetworkArrays), one pass per rule."""
+jumps, zero lengths, implausible numbers. Vectorised over the whole map (NetworkArrays), one pass per rule."""
 
 from __future__ import annotations
 
@@ -8,7 +8,9 @@ import math
 
 import numpy as np
 
+from tavf_mapkit.opendrive.budget import MIN_ROAD_LIMIT, WINDING
 from tavf_mapkit.opendrive.geometry import GeometryKind
+from tavf_mapkit.opendrive.plausibility import COORDINATE_LIMIT
 from tavf_mapkit.validate.context import angle_difference
 from tavf_mapkit.validate.finding import ERROR, WARNING, Hit
 from tavf_mapkit.validate.registry import rule
@@ -262,3 +264,17 @@ def zero_length_geometry(ctx, rule):
             if not geometry.length > 0 and math.isfinite(geometry.length):
                 yield Hit(f"geometry at s={geometry.s:g} has length 0", road=road.id, s=geometry.s,
                           line=geometry.line)
+
+
+@rule("geometry.plausible", ERROR,
+      summary=f"Every planView vertex is a place on Earth (abs(x), abs(y) at most {COORDINATE_LIMIT:.0e} m, so not "
+              f"SUMO's invalid-position sentinel -2^30 m) and no road is longer than {WINDING:g} times the map's "
+              f"extent (at least {MIN_ROAD_LIMIT / 1000:g} km).",
+      why="Such numbers come from a writer that failed (netconvert's Position::INVALID) or from an edit. Everything "
+          "downstream samples roads by length, so one of them is a terabyte allocation: mapkit refuses to sample "
+          "such a road, and its build repairs or drops it.")
+def plausible(ctx, rule):
+    budget = ctx.odr.arrays.budget
+    for road_index in sorted(budget.problems):
+        line, _element, message = budget.problems[road_index]
+        yield Hit(message, road=budget.road_ids[road_index], line=line)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from tavf_mapkit.errors import InputError
+from tavf_mapkit.errors import InputError, MapkitError
 from tavf_mapkit.validate.context import ValidationContext
 from tavf_mapkit.validate.finding import ERROR, WARNING, Finding
 from tavf_mapkit.validate.registry import select_rules
@@ -61,7 +61,13 @@ def _run(context: ValidationContext, rules, strict: bool, version: str | None) -
             continue
         ran.append(rule.id)
         severity = ERROR if strict and rule.severity == WARNING else rule.severity
-        for hit in rule.check(context, rule):
-            findings.append(Finding(rule.id, severity, hit.road, hit.lane, hit.s, hit.line, hit.message))
+        try:
+            for hit in rule.check(context, rule):
+                findings.append(Finding(rule.id, severity, hit.road, hit.lane, hit.s, hit.line, hit.message))
+        except MapkitError as error:
+            # a rule that would sample an implausible road (or over the map's budget) reports why it could not
+            # check, and the other rules still run: a validator's job is to list what is wrong
+            findings.append(Finding(rule.id, ERROR, error.road, None, None, error.line,
+                                    f"not checked: {error.message}"))
     notes = {key: value for key, value in context.notes.items() if not key.startswith("_") and key != "reader_error"}
     return ValidationReport(context.name, tuple(findings), tuple(ran), strict, version, notes, tuple(skipped))
