@@ -6,7 +6,7 @@ so one searchsorted finds the governing record of every sample of every road at 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -41,6 +41,17 @@ class RecordTable:
         s0 = np.concatenate([p.s0 for p in nonempty]) if nonempty else np.zeros(0)
         coefficients = np.concatenate([p.coefficients for p in nonempty]) if nonempty else np.zeros((0, 4))
         return RecordTable(group, s0, coefficients, span, extend_first)
+
+    def intervals(self, group_end: np.ndarray) -> np.ndarray:
+        """Length of each record's interval: to the next record of its group, the last one to ``group_end[group]``."""
+        group, s0 = self.group, self.s0
+        nxt = np.empty_like(s0)
+        if len(s0):
+            nxt[:-1] = s0[1:]
+            last = np.ones(len(s0), dtype=bool)
+            last[:-1] = group[1:] != group[:-1]
+            nxt[last] = group_end[group[last]]
+        return nxt - s0
 
     def evaluate(self, group: np.ndarray, s: np.ndarray, derivative: bool = False) -> np.ndarray:
         if not len(self.s0):
@@ -86,7 +97,7 @@ class NetworkArrays:
     lane_border: RecordTable
     lane_height_inner: RecordTable
     lane_height_outer: RecordTable
-    budget: SampleBudget  # what sampling this map may allocate (ask before allocating)
+    budget: SampleBudget | None = None  # what sampling this map may allocate (ask before allocating)
 
     @staticmethod
     def build(odr) -> "NetworkArrays":
@@ -118,7 +129,7 @@ class NetworkArrays:
                         borders.append(lane.borders)
                         heights_inner.append(_step_profile([(h.s0, h.inner) for h in lane.heights]))
                         heights_outer.append(_step_profile([(h.s0, h.outer) for h in lane.heights]))
-        return NetworkArrays(
+        arrays = NetworkArrays(
             geometries=table,
             geometry_keys=table.group + table.s / span,
             elevation=RecordTable.build([r.elevation for r in roads], span),
@@ -138,8 +149,8 @@ class NetworkArrays:
             lane_border=RecordTable.build(borders, span, extend_first=True),
             lane_height_inner=RecordTable.build(heights_inner, span),
             lane_height_outer=RecordTable.build(heights_outer, span),
-            budget=SampleBudget.build(odr, table, lengths),
         )
+        return replace(arrays, budget=SampleBudget.build(odr, arrays))
 
     def reference(self, road: np.ndarray, s: np.ndarray):
         """(x, y, z, heading, slope, superelevation, lane_offset) for arrays of (road index, s)."""

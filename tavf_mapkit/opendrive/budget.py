@@ -6,7 +6,9 @@ checks, both before any allocation, both one line naming file, line and road:
 
 1. Plausibility, from the map's real extent (the box of its geometry start points that are on Earth): a
    road may be at most ``WINDING`` times as long as the map is wide (a serpentine mountain road or a ring
-   road is 3-5 times), but at least ``MIN_ROAD_LIMIT``; no vertex may lie off Earth.
+   road is 3-5 times), but at least ``MIN_ROAD_LIMIT``; no vertex may lie off Earth; no lane width, border
+   or lane offset may reach ``LATERAL_LIMIT`` and no elevation ``ELEVATION_LIMIT`` (meshers allocate by
+   area, and solid kernels refuse such coordinates). A road with such a number is never sampled.
 2. A ceiling on the points one allocation may hold (``MAX_POINTS``), whatever the reason: a tiny step asked
    for on a big map, or many long but plausible roads.
 
@@ -21,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tavf_mapkit.errors import InputError
+from tavf_mapkit.opendrive.cubic import cubic_largest_magnitude
 from tavf_mapkit.opendrive.plausibility import Extent, length_text, off_earth, vertex_problem
 
 #: points one allocation may hold; a lane sample costs ~400 bytes through sampling and surface points,
@@ -31,6 +34,10 @@ MAX_POINTS = 5_000_000
 WINDING = 10.0
 #: m; every map may have roads this long, however small its extent (a single straight road has none)
 MIN_ROAD_LIMIT = 100_000.0
+#: m; no lane border lies this far from its road's reference line (a 20-lane motorway reaches 80 m)
+LATERAL_LIMIT = 1_000.0
+#: m; no road is this high or deep (the highest paved road is at 5.8 km), absolute altitudes included
+ELEVATION_LIMIT = 100_000.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -47,26 +54,28 @@ class SampleBudget:
     problems: dict = field(default_factory=dict)
 
     @staticmethod
-    def build(odr, table, lengths: np.ndarray, max_points: int = MAX_POINTS) -> SampleBudget:
-        """From the map's roads, its flattened geometry table (``group`` = road index) and road lengths."""
+    def build(odr, arrays, max_points: int = MAX_POINTS) -> SampleBudget:
+        """From the map and its flattened tables (``arrays``: NetworkArrays, without a budget yet)."""
         roads = odr.roads
+        table, lengths = arrays.geometries, arrays.road_length
         extent = Extent.around(table.x, table.y)
         road_limit = max(MIN_ROAD_LIMIT, WINDING * (extent.diagonal if extent else 0.0))
         problems: dict[int, tuple[int | None, str, str]] = {}
+
+        def note(road: int, line, element: str, message: str) -> None:
+            problems.setdefault(road, (line, element, message))  # the first problem of a road is enough
+
         bad = np.flatnonzero(off_earth(table.x, table.y))
         if len(bad):
             first_of_road = np.searchsorted(table.group, table.group[bad], side="left")
             for k, first in zip(bad.tolist(), first_of_road.tolist()):
-                road = int(table.group[k])
-                if road not in problems:
-                    geometry = roads[road].reference_line.geometries[k - first]
-                    problems[road] = (geometry.line, "geometry", vertex_problem(geometry.x, geometry.y))
+                geometry = roads[int(table.group[k])].reference_line.geometries[k - first]
+                note(int(table.group[k]), geometry.line, "geometry", vertex_problem(geometry.x, geometry.y))
         spans = f"spans {length_text(extent.diagonal)}" if extent else "has no vertex on Earth"
-        for road in np.flatnonzero(~(np.asarray(lengths, dtype=float) <= road_limit)).tolist():
-            if road not in problems:
-                problems[road] = (roads[road].line, "road",
-                                  f"@length={lengths[road]:.6g} m is implausible: the map's geometry {spans}, "
-                                  f"so no road can be longer than {length_text(road_limit)}")
+        for road in np.flatnonzero(~(lengths <= road_limit)).tolist():
+            note(road, roads[road].line, "road", f"@length={lengths[road]:.6g} m is implausible: the map's geometry "
+                                                 f"{spans}, so no road can be longer than {length_text(road_limit)}")
+        _note_profiles(odr, arrays, note)
         return SampleBudget(odr.source, tuple(road.id for road in roads), tuple(road.line for road in roads),
                             extent, road_limit, max_points, problems)
 
@@ -105,3 +114,35 @@ class SampleBudget:
     def check_total(self, count: float, what: str, road: int) -> None:
         """Refuse one allocation of ``count`` points for ``what``, charged to road index ``road``."""
         self.check(np.array([road]), np.array([count], dtype=float), what)
+
+
+def _note_profiles(odr, arrays, note) -> None:
+    """Lane widths, borders and lane offsets that reach beyond LATERAL_LIMIT, elevations beyond ELEVATION_LIMIT
+    anywhere in their interval (exact extremes of each cubic record, not samples)."""
+    road_end = arrays.road_length
+    lane_end = arrays.section_end[arrays.lane_section]
+    lane_road = arrays.section_road[arrays.lane_section]
+    checks = (
+        (arrays.lane_width, lane_end, lane_road, LATERAL_LIMIT, "lane", "width"),
+        (arrays.lane_border, lane_end, lane_road, LATERAL_LIMIT, "lane", "border"),
+        (arrays.lane_offset, road_end, None, LATERAL_LIMIT, "laneOffset", "lane offset"),
+        (arrays.elevation, road_end, None, ELEVATION_LIMIT, "elevation", "elevation"),
+    )
+    lane_objects = None
+    for records, group_end, road_of_group, limit, element, what in checks:
+        if not len(records.s0):
+            continue
+        extreme = cubic_largest_magnitude(records.coefficients, np.maximum(records.intervals(group_end), 0.0))
+        for k in np.flatnonzero(~(extreme <= limit)).tolist():
+            group = int(records.group[k])
+            if road_of_group is None:
+                road, line, whose = group, odr.roads[group].line, ""
+            else:
+                if lane_objects is None:  # NetworkArrays' lane order: per section left lanes, then right lanes
+                    lane_objects = [lane for road in odr.roads for section in road.lane_sections
+                                    for lane in section.left + section.right]
+                lane = lane_objects[group]
+                road, line, whose = int(road_of_group[group]), lane.line, f"lane {lane.id} "
+            s = float(records.s0[k])
+            note(road, line, element, f"{whose}{what} reaches {extreme[k]:.3g} m in the record at s={s:g}; real roads "
+                                      f"stay below {length_text(limit)}")

@@ -74,3 +74,33 @@ def evaluate_cubic(coefficients: np.ndarray, ds: np.ndarray) -> np.ndarray:
     """Horner evaluation of rows of (a, b, c, d) at ds (same length)."""
     a, b, c, d = coefficients.T
     return a + ds * (b + ds * (c + ds * d))
+
+
+def cubic_minimum(coefficients: np.ndarray, length: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Exact minimum of a + b x + c x^2 + d x^3 on [0, length] per row, and where it is (ends and stationary
+    points are the only candidates)."""
+    a, b, c, d = coefficients.T
+    candidates = [np.zeros_like(length), np.maximum(length, 0.0)]
+    # stationary points: b + 2c x + 3d x^2 = 0
+    quadratic = np.abs(d) > 1e-15
+    disc = 4.0 * c * c - 12.0 * d * b
+    root = np.sqrt(np.maximum(disc, 0.0))
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        x1 = np.where(quadratic, (-2.0 * c + root) / (6.0 * d), np.where(np.abs(c) > 1e-15, -b / (2.0 * c), 0.0))
+        x2 = np.where(quadratic, (-2.0 * c - root) / (6.0 * d), 0.0)
+    for x in (x1, x2):
+        inside = np.isfinite(x) & (x > 0) & (x < length) & ((disc >= 0) | ~quadratic)
+        candidates.append(np.where(inside, x, 0.0))
+    xs = np.column_stack(candidates)
+    with np.errstate(over="ignore", invalid="ignore"):
+        values = a[:, None] + xs * (b[:, None] + xs * (c[:, None] + xs * d[:, None]))
+    best = np.argmin(values, axis=1)
+    rows = np.arange(len(length))
+    return values[rows, best], xs[rows, best]
+
+
+def cubic_largest_magnitude(coefficients: np.ndarray, length: np.ndarray) -> np.ndarray:
+    """Exact max |a + b x + c x^2 + d x^3| on [0, length] per row."""
+    lowest, _ = cubic_minimum(coefficients, length)
+    highest, _ = cubic_minimum(-coefficients, length)
+    return np.maximum(np.abs(lowest), np.abs(highest))

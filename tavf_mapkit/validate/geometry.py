@@ -8,7 +8,8 @@ import math
 
 import numpy as np
 
-from tavf_mapkit.opendrive.budget import MIN_ROAD_LIMIT, WINDING
+from tavf_mapkit.opendrive.budget import ELEVATION_LIMIT, LATERAL_LIMIT, MIN_ROAD_LIMIT, WINDING
+from tavf_mapkit.opendrive.cubic import cubic_minimum
 from tavf_mapkit.opendrive.geometry import GeometryKind
 from tavf_mapkit.opendrive.plausibility import COORDINATE_LIMIT
 from tavf_mapkit.validate.context import angle_difference
@@ -119,39 +120,6 @@ def param_poly3_length(ctx, rule):
                   f"{geometry.length:.6g} ({difference[k]:+.4g} m)", road=road.id, s=geometry.s, line=geometry.line)
 
 
-def _record_intervals(records, section_end_of_group):
-    """For a RecordTable: per record the length of its interval (to the next record of its group or the end)."""
-    group, s0 = records.group, records.s0
-    nxt = np.empty_like(s0)
-    if len(s0):
-        nxt[:-1] = s0[1:]
-        last = np.ones(len(s0), dtype=bool)
-        last[:-1] = group[1:] != group[:-1]
-        nxt[last] = section_end_of_group(group[last])
-    return nxt - s0, nxt
-
-
-def _cubic_minimum(coefficients: np.ndarray, length: np.ndarray):
-    """Minimum of a + b x + c x^2 + d x^3 on [0, length] per row, and where it is."""
-    a, b, c, d = coefficients.T
-    candidates = [np.zeros_like(length), np.maximum(length, 0.0)]
-    # stationary points: b + 2c x + 3d x^2 = 0
-    quadratic = np.abs(d) > 1e-15
-    disc = 4.0 * c * c - 12.0 * d * b
-    root = np.sqrt(np.maximum(disc, 0.0))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        x1 = np.where(quadratic, (-2.0 * c + root) / (6.0 * d), np.where(np.abs(c) > 1e-15, -b / (2.0 * c), 0.0))
-        x2 = np.where(quadratic, (-2.0 * c - root) / (6.0 * d), 0.0)
-    for x in (x1, x2):
-        inside = np.isfinite(x) & (x > 0) & (x < length) & ((disc >= 0) | ~quadratic)
-        candidates.append(np.where(inside, x, 0.0))
-    xs = np.column_stack(candidates)
-    values = a[:, None] + xs * (b[:, None] + xs * (c[:, None] + xs * d[:, None]))
-    best = np.argmin(values, axis=1)
-    rows = np.arange(len(length))
-    return values[rows, best], xs[rows, best]
-
-
 @rule("geometry.negative-width", ERROR, tolerance=0.001, unit="m",
       summary="No lane width record becomes negative anywhere in its range (exact minimum of the cubic).",
       why="A negative width turns a lane inside out: its outer border crosses its inner border and the surface "
@@ -161,8 +129,8 @@ def negative_width(ctx, rule):
     widths = arrays.lane_width
     if not len(widths.s0):
         return
-    length, _ = _record_intervals(widths, lambda g: arrays.section_end[arrays.lane_section[g]])
-    minimum, where = _cubic_minimum(widths.coefficients, length)
+    length = widths.intervals(arrays.section_end[arrays.lane_section])
+    minimum, where = cubic_minimum(widths.coefficients, length)
     active = ~arrays.lane_uses_border[widths.group] & (length > 0)
     rows = ctx.lane_rows
     reported = set()
@@ -268,8 +236,9 @@ def zero_length_geometry(ctx, rule):
 
 @rule("geometry.plausible", ERROR,
       summary=f"Every planView vertex is a place on Earth (abs(x), abs(y) at most {COORDINATE_LIMIT:.0e} m, so not "
-              f"SUMO's invalid-position sentinel -2^30 m) and no road is longer than {WINDING:g} times the map's "
-              f"extent (at least {MIN_ROAD_LIMIT / 1000:g} km).",
+              f"SUMO's invalid-position sentinel -2^30 m), no road is longer than {WINDING:g} times the map's "
+              f"extent (at least {MIN_ROAD_LIMIT / 1000:g} km), no lane width, border or lane offset reaches "
+              f"{LATERAL_LIMIT:g} m and no elevation {ELEVATION_LIMIT / 1000:g} km.",
       why="Such numbers come from a writer that failed (netconvert's Position::INVALID) or from an edit. Everything "
           "downstream samples roads by length, so one of them is a terabyte allocation: mapkit refuses to sample "
           "such a road, and its build repairs or drops it.")
