@@ -30,7 +30,7 @@ class Session:
         from tavf_mapkit.lanegraph import LaneGraph
         from tavf_mapkit.opendrive import load_opendrive
         from twin.session.outputs import OutputDir
-        from twin.sim.build import Build
+        from twin.sim.build import Build, georeference_for_driving
 
         started = time.perf_counter()
         if config.dt <= 0 or config.dt > 0.5:
@@ -43,6 +43,10 @@ class Session:
         self.build = Build.open(config.map)
         self.build_dir = self.build.path
         self.odr = load_opendrive(self.build.xodr)
+        self.georeference, fallback = georeference_for_driving(self.odr)
+        if fallback:
+            log.warning("%s has no geoReference: lat/lon are placed as CARLA places such maps, local (0, 0) at "
+                        "0 deg N 0 deg E", self.build.xodr.name)
         self.graph = LaneGraph.from_opendrive(self.odr)
         if len(self.graph) == 0:
             raise InputError("the map has no driving lanes", file=str(self.build.xodr))
@@ -152,12 +156,10 @@ class Session:
         from twin.sensors.gnss import GnssConfig, GnssSensor
         from twin.sensors.odometry import ImuConfig, ImuSensor
 
-        if self.odr.georeference is None:
-            raise InputError("the map has no geoReference, so there are no lat/lon", file=str(self.build.xodr))
         sigma = float(config.gnss_noise)
         if sigma < 0:
             raise InputError("--gnss-noise must not be negative")
-        self.gnss = GnssSensor(self.odr.georeference, GnssConfig(config.gnss_rate, (sigma, sigma, sigma),
+        self.gnss = GnssSensor(self.georeference, GnssConfig(config.gnss_rate, (sigma, sigma, sigma),
                                                                  tuple(config.gnss_bias)), self.rng("gnss"), self.dt)
         self.imu = ImuSensor(ImuConfig(), self.rng("imu"), self.dt) if config.imu else None
         self.lidar = self.camera = None
@@ -300,7 +302,7 @@ class Session:
         fleet = self.fleet
         s, g = fleet.state, fleet.ground
         x, y, z, yaw = float(s.x[0]), float(s.y[0]), float(g.z[0]), float(s.yaw[0])
-        lon, lat = self.odr.georeference.local_to_wgs84(x, y)
+        lon, lat = self.georeference.local_to_wgs84(x, y)
         fix = self.gnss.measure(t, x, y, z) if self.gnss.due(step) else None
         if self.imu is not None:
             self.imu_sample = self.imu.measure(t, float(s.vx[0]), float(s.vy[0]), float(s.yaw_rate[0]),

@@ -10,6 +10,19 @@ from pathlib import Path
 from tavf_mapkit.errors import InputError
 from tavf_mapkit.pipeline.manifest import file_sha256
 
+# A map without <geoReference> (many hand-made and tool-made OpenDRIVE files) is placed as CARLA places it:
+# local (0, 0) at 0 deg N, 0 deg E on a transverse Mercator, so GNSS fixes and lat/lon exist (docs/twin.md).
+NO_GEOREFERENCE_FALLBACK = "+proj=tmerc +lat_0=0 +lon_0=0 +k=1 +x_0=0 +y_0=0 +ellps=WGS84 +units=m +no_defs"
+
+
+def georeference_for_driving(odr):
+    """(the map's georeference, False), or (the fallback at 0 deg N 0 deg E, True) for a map without one."""
+    if odr.georeference is not None:
+        return odr.georeference, False
+    from tavf_mapkit.opendrive.georef import GeoReference
+
+    return GeoReference(NO_GEOREFERENCE_FALLBACK), True
+
 
 @dataclass(frozen=True, eq=False)
 class Build:

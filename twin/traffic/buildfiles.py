@@ -37,7 +37,16 @@ def build_files(build_dir: str | Path) -> BuildFiles:
         relative = (artifacts or {}).get(key, {}).get("path") if isinstance(artifacts, dict) else None
         path = folder / (relative or f"{name}{suffix}")
         if not path.is_file():
+            if key == "net" and _input_kind(manifest) == "opendrive":
+                raise InputError("the build was made from an OpenDRIVE file and has no SUMO network, which SUMO "
+                                 "traffic (--traffic, --pedestrians, --demand) needs: build from OSM or a SUMO "
+                                 "network for traffic", file=str(folder))
             raise InputError(f"the build has no {name}{suffix} (artifact {key!r}); rebuild it with mapkit build",
                              file=str(folder))
         paths[key] = path
     return BuildFiles(folder, name, paths["net"], paths["xodr"])
+
+
+def _input_kind(manifest) -> str | None:
+    record = manifest.get("input") if isinstance(manifest, dict) else None
+    return record.get("kind") if isinstance(record, dict) else None

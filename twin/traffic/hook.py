@@ -58,6 +58,10 @@ class TrafficHook(SessionHook):
         self._touching: set[str] = set()
         self.publishing = None
         self.publisher = None
+        if options.get("map") is not None:
+            from twin.traffic.buildfiles import build_files
+
+            build_files(options["map"])  # no SUMO network (an OpenDRIVE build): one line before any setup
 
     # ------------------------------------------------------------------ life cycle
     def start(self, session: SessionView) -> None:

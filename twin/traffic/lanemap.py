@@ -104,7 +104,9 @@ def _sample_polylines(arrays, rows: list[int]) -> tuple[np.ndarray, np.ndarray]:
     owner = np.repeat(np.arange(len(rows)), count)
     first = np.repeat(np.cumsum(count) - count, count)
     u = (np.arange(len(owner)) - first) / np.repeat(count - 1, count)  # 0..1 along each lane
-    forward = np.repeat(arrays.lane_id[rows_array] < 0, count)  # right lanes run along s, left ones against it
+    # right lanes run along s, left ones against it: netconvert's OpenDRIVE (the only kind with a SUMO network)
+    # has no rule="LHT"; in a left-hand network too it writes each direction as right lanes along s
+    forward = np.repeat(arrays.lane_id[rows_array] < 0, count)
     s = np.where(forward, np.repeat(s0, count) + u * np.repeat(s1 - s0, count),
                  np.repeat(s1, count) - u * np.repeat(s1 - s0, count))
     x, y, z = _lane_centre(arrays, arrays.section_road[np.repeat(section, count)], np.repeat(rows_array, count), s)
