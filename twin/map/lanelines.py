@@ -1,4 +1,14 @@
-"""Lane centre lines in driving direction with arc length, computed once per lane and cached."""
+"""Lane centre lines in driving direction with arc length, computed once per lane and cached.
+
+Where a lane lies farther from its road's reference line than the line's radius of curvature (outer lanes
+on the inside of netconvert's tight bends and junction corners), its offset centre line folds back on
+itself: a small loop ("swallowtail") or a zig-zag, metres long on lanes that are otherwise straight. No car
+drives such a loop, so each line is cut at its self-intersections (``without_loops``), leaving the kink a
+driver actually follows. A fold that the lane's end cuts open (no crossing left inside the lane) or that
+doubles back on itself without crossing shows as a cusp, a reversal between two segments; the part of
+the line before (after) a cusp near the start (end) is dropped, a cusp inside loses its vertex
+(``without_folds``).
+"""
 
 from __future__ import annotations
 
@@ -33,6 +43,75 @@ class LaneLine:
         return point, float(np.arctan2(d[1], d[0]))
 
 
+LOOP_WINDOW = 40  # samples: a fold is shorter than this (its size is about the lane's offset)
+CUSP = np.radians(120.0)  # a turn this sharp between two consecutive segments is a fold, not a corner
+FOLD_END = 5.0  # m: a cusp this close to an end cuts the rest of the line off towards that end
+
+
+def without_loops(points: np.ndarray, window: int = LOOP_WINDOW) -> np.ndarray:
+    """The polyline (n, 3) with every loop cut out: where segment i crosses a later segment j (at most
+    ``window`` segments on, in plan view), the points between them are replaced by the crossing point
+    (the outermost crossing of each i; height interpolated along segment i)."""
+    m = len(points) - 1  # segments
+    if m < 3:
+        return points
+    a, d = points[:-1, :2], np.diff(points[:, :2], axis=0)
+    heading = np.arctan2(d[:, 1], d[:, 0])
+    if np.sum(np.abs((np.diff(heading) + np.pi) % (2 * np.pi) - np.pi)) < np.pi:
+        return points  # a line must turn by half a circle at least to cross itself
+    found_i, found_j, found_f = [], [], []
+    for gap in range(2, min(window, m - 1) + 1):
+        i = np.arange(m - gap)
+        j = i + gap
+        denominator = d[i, 0] * d[j, 1] - d[i, 1] * d[j, 0]
+        r = a[j] - a[i]
+        safe = np.where(np.abs(denominator) > 1e-12, denominator, 1.0)
+        f = (r[:, 0] * d[j, 1] - r[:, 1] * d[j, 0]) / safe  # along segment i
+        g = (r[:, 0] * d[i, 1] - r[:, 1] * d[i, 0]) / safe  # along segment j
+        hit = (np.abs(denominator) > 1e-12) & (f >= 0) & (f <= 1) & (g >= 0) & (g <= 1)
+        found_i.append(i[hit])
+        found_j.append(j[hit])
+        found_f.append(f[hit])
+    i, j, f = np.concatenate(found_i), np.concatenate(found_j), np.concatenate(found_f)
+    if not len(i):
+        return points
+    pieces, done = [], 0
+    for first in np.unique(i):  # in order along the line; loops inside a cut loop are gone with it
+        if first < done:
+            continue
+        k = np.flatnonzero(i == first)
+        k = k[np.argmax(j[k])]
+        pieces.append(points[done:first + 1])
+        pieces.append((points[first] + f[k] * (points[first + 1] - points[first]))[None, :])
+        done = int(j[k]) + 1
+    pieces.append(points[done:])
+    return np.concatenate(pieces)
+
+
+def without_folds(points: np.ndarray) -> np.ndarray:
+    """The polyline (n, 3) without cusps (see the module docstring). Repeated points are dropped."""
+    for _ in range(len(points)):  # every pass removes at least one point
+        step = np.hypot(*np.diff(points[:, :2], axis=0).T)
+        points = points[np.r_[True, step > 1e-9]]
+        d = np.diff(points[:, :2], axis=0)
+        if len(d) < 2:
+            return points
+        heading = np.arctan2(d[:, 1], d[:, 0])
+        turn = np.abs((np.diff(heading) + np.pi) % (2 * np.pi) - np.pi)
+        cusps = np.flatnonzero(turn > CUSP)
+        if not len(cusps):
+            return points
+        vertex = int(cusps[0]) + 1
+        along = np.r_[0.0, np.cumsum(np.hypot(d[:, 0], d[:, 1]))]
+        if along[vertex] <= FOLD_END:
+            points = points[vertex:]
+        elif along[-1] - along[vertex] <= FOLD_END:
+            points = points[:vertex + 1]
+        else:
+            points = np.delete(points, vertex, axis=0)
+    return points
+
+
 class LaneLines:
     """Centre lines of a lane graph's lanes, built on first use."""
 
@@ -45,6 +124,7 @@ class LaneLines:
         line = self._cache.get(key)
         if line is None:
             points, _ = self.graph.centerline(key, self.step)
+            points = without_folds(without_loops(points))
             along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points[:, :2], axis=0), axis=1))])
             line = LaneLine(key, points, along, self.graph.speed_limit(key))
             self._cache[key] = line

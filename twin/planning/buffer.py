@@ -3,7 +3,9 @@
 Row i holds vehicle i's path ahead (and a little behind): points about 1 m apart, their arc length ``s``,
 the allowed speed ``vmax`` (speed limit and the curvature limit sqrt(a_lat / kappa)) and the lane code.
 Routes arrive as chunks from an iterator per vehicle and are pulled in while less than ``horizon`` metres
-lie ahead; consumed points are shifted out.
+lie ahead; consumed points are shifted out. A chunk that ``begins`` after a turnaround or restart does not
+join the path: the path ends there (the car stops at its end), the chunk waits in ``pending`` until the
+fleet moves the car onto it (``jump``).
 """
 
 from __future__ import annotations
@@ -46,6 +48,9 @@ class PathBuffer:
         self.base = np.zeros(count, dtype=np.int64)
         self.sources: list[Iterator[PathChunk] | None] = [None] * count
         self.exhausted = np.zeros(count, dtype=bool)
+        self.pending: list[PathChunk | None] = [None] * count
+        self.queued: list[list[PathChunk]] = [[] for _ in range(count)]  # pieces of a chunk too long to fit
+        self.waiting = np.zeros(count, dtype=bool)  # the path ends at a turnaround or restart
         self._rows = np.arange(count)
 
     # ------------------------------------------------------------------ filling
@@ -55,7 +60,21 @@ class PathBuffer:
         self.count[i] = 0
         self.base[i] = 0
         self.exhausted[i] = False
+        self.pending[i] = None
+        self.waiting[i] = False
+        self.queued[i] = []
         self.refill(i)
+
+    def jump(self, i: int) -> str:
+        """Drop vehicle i's path and go on with the chunk waiting after its end; returns its ``begins``."""
+        chunk = self.pending[i]
+        self.pending[i] = None
+        self.waiting[i] = False
+        self.count[i] = 0
+        self.base[i] = 0
+        self._append(i, chunk)
+        self.refill(i)
+        return chunk.begins
 
     def remaining(self, i: int) -> float:
         if self.count[i] == 0:
@@ -63,12 +82,17 @@ class PathBuffer:
         return float(self.s[i, self.count[i] - 1] - self.s[i, self.base[i]])
 
     def refill(self, i: int) -> None:
-        while not self.exhausted[i] and self.remaining(i) < self.horizon:
-            chunk = next(self.sources[i], None)
+        while not self.exhausted[i] and not self.waiting[i] and self.remaining(i) < self.horizon:
+            chunk = self._next_chunk(i)
             if chunk is None:
                 self.exhausted[i] = True
                 if self.count[i]:
                     self.vmax[i, self.count[i] - 1] = 0.0  # stop at the end of a finite route
+                break
+            if chunk.begins is not None and self.count[i]:
+                self.pending[i] = chunk
+                self.waiting[i] = True
+                self.vmax[i, self.count[i] - 1] = 0.0  # stop where the path ends
                 break
             self._append(i, chunk)
 
@@ -76,9 +100,23 @@ class PathBuffer:
         """Top up every row whose path ahead has become short (cheap check first)."""
         n = self.count
         last = self.s[self._rows, np.maximum(n - 1, 0)]
-        short = (last - self.s[self._rows, self.base] < 0.5 * self.horizon) & ~self.exhausted
+        short = (last - self.s[self._rows, self.base] < 0.5 * self.horizon) & ~self.exhausted & ~self.waiting
         for i in np.flatnonzero(short):
             self.refill(int(i))
+
+    def _next_chunk(self, i: int) -> PathChunk | None:
+        """The next chunk of vehicle i's route; one longer than a quarter of the capacity (a lane of
+        kilometres) comes in pieces that share their end points, so the path never has to be cut."""
+        if self.queued[i]:
+            return self.queued[i].pop(0)
+        chunk = next(self.sources[i], None)
+        piece = self.capacity // 4
+        if chunk is None or len(chunk) <= piece:
+            return chunk
+        starts = range(0, len(chunk) - 1, piece)
+        pieces = [chunk.slice(max(k - 1, 0), k + piece) for k in starts]
+        self.queued[i] = [PathChunk(p.points, p.speed_limit, p.lane_code) for p in pieces[1:]]
+        return pieces[0]
 
     def _append(self, i: int, chunk: PathChunk) -> None:
         points = chunk.points
@@ -214,6 +252,11 @@ class PathBuffer:
         """True for vehicles whose finite route is driven to its end."""
         last = self.s[self._rows, np.maximum(self.count - 1, 0)]
         return self.exhausted & (s_now >= last - margin)
+
+    def at_break(self, s_now: np.ndarray, margin: float = 1.0) -> np.ndarray:
+        """True for vehicles at the end of a path that goes on after a turnaround or restart."""
+        last = self.s[self._rows, np.maximum(self.count - 1, 0)]
+        return self.waiting & (s_now >= last - margin)
 
     def lane_code(self, projection: Projection) -> np.ndarray:
         return self.lane[self._rows, projection.index]

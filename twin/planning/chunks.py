@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tavf_mapkit.errors import MapkitError
 from tavf_mapkit.lanegraph import LaneKey
 from twin.map.lanelines import LaneLines
 
@@ -15,15 +16,36 @@ LANE_CHANGE_MAX = 25.0  # m of a lane change manoeuvre at most
 # netconvert writes sub-metre connecting roads whose heading is numerically meaningless, so their lanes can
 # lie metres to the wrong side; such lanes add no points and the path joins their neighbours directly
 DEGENERATE_LANE = 1.0
+# a route that adds no point to its path for this many lanes in a row has stalled (lanes of sub-metre
+# connecting roads only): it raises instead of being asked for more for ever
+MAX_EMPTY_LANES = 1000
+
+
+class RouteStalled(MapkitError):
+    """A route that cannot advance: it would loop for ever without covering distance."""
+
+
+@dataclass(frozen=True)
+class RouteBreak:
+    """An item of a lane route between two lanes that do not join: the car turns around onto the next lane
+    ("turnaround") or is put on a new route ("restart")."""
+
+    kind: str
+
+
+TURNAROUND = RouteBreak("turnaround")
+RESTART = RouteBreak("restart")
 
 
 @dataclass(frozen=True, eq=False)
 class PathChunk:
-    """A stretch of path: points (n, 3), the speed limit and the lane (index into a LaneCodes) per point."""
+    """A stretch of path: points (n, 3), the speed limit and the lane (index into a LaneCodes) per point.
+    ``begins``: None, or the kind of ``RouteBreak`` that separates this chunk from the path before it."""
 
     points: np.ndarray
     speed_limit: np.ndarray
     lane_code: np.ndarray
+    begins: str | None = None
 
     def __len__(self) -> int:
         return len(self.points)
@@ -31,10 +53,11 @@ class PathChunk:
     @staticmethod
     def concat(chunks: Sequence[PathChunk]) -> PathChunk:
         return PathChunk(np.concatenate([c.points for c in chunks]), np.concatenate([c.speed_limit for c in chunks]),
-                         np.concatenate([c.lane_code for c in chunks]))
+                         np.concatenate([c.lane_code for c in chunks]), chunks[0].begins if chunks else None)
 
     def slice(self, start: int, stop: int | None = None) -> PathChunk:
-        return PathChunk(self.points[start:stop], self.speed_limit[start:stop], self.lane_code[start:stop])
+        return PathChunk(self.points[start:stop], self.speed_limit[start:stop], self.lane_code[start:stop],
+                         self.begins)
 
 
 class LaneCodes:
@@ -86,19 +109,31 @@ class Span:
     stop: float | None
 
 
-def route_spans(lines: LaneLines, graph, route: Iterable[LaneKey], first_along: float = 0.0) -> Iterator[Span]:
+def route_spans(lines: LaneLines, graph, route: Iterable[LaneKey | RouteBreak],
+                first_along: float = 0.0) -> Iterator[Span | RouteBreak]:
     """The stretch of each lane a route drives (any iterable, also endless). A run of lane changes inside one
     lane section splits that section between the lanes, each transition a straight diagonal of up to
-    ``LANE_CHANGE_MAX`` metres. The first lane starts ``first_along`` metres in."""
+    ``LANE_CHANGE_MAX`` metres. The first lane starts ``first_along`` metres in. ``RouteBreak`` items pass
+    through; a run of lane changes that comes back to a lane of the run raises ``RouteStalled`` (it would
+    split one section between ever more lanes and never reach the next)."""
     edges = graph.graph
     keys = iter(route)
     pending = next(keys, None)
     index = 0
     first = True
     while pending is not None:
+        if isinstance(pending, RouteBreak):
+            yield pending
+            pending = next(keys, None)
+            continue
         run = [pending]
         pending = next(keys, None)
-        while pending is not None and pending in edges[run[-1]] and edges.edges[run[-1], pending]["kind"] != "follow":
+        while isinstance(pending, LaneKey) and pending in edges[run[-1]] \
+                and edges.edges[run[-1], pending]["kind"] != "follow":
+            if pending in run:
+                raise RouteStalled(f"the route changes lanes in a circle on road {graph.road_id(pending)} "
+                                   f"(lanes {', '.join(str(k.lane_id) for k in run)}, {pending.lane_id}) "
+                                   "without driving on")
             run.append(pending)
             pending = next(keys, None)
         offset = first_along if first else 0.0
@@ -119,11 +154,29 @@ def route_spans(lines: LaneLines, graph, route: Iterable[LaneKey], first_along: 
             index += 1
 
 
-def expand_route(lines: LaneLines, codes: LaneCodes, route: Iterable[LaneKey],
+def expand_route(lines: LaneLines, codes: LaneCodes, route: Iterable[LaneKey | RouteBreak],
                  first_along: float = 0.0) -> Iterator[PathChunk]:
-    """Chunks of a lane route (see ``route_spans``)."""
+    """Chunks of a lane route (see ``route_spans``). The first chunk with points after a ``RouteBreak``
+    carries its kind in ``begins``. Raises ``RouteStalled`` after ``MAX_EMPTY_LANES`` lanes in a row
+    without a point."""
+    begins = None
+    empty = 0
     for span in route_spans(lines, codes.graph, route, first_along):
-        yield lane_chunk(lines, codes, span.key, span.start, span.stop)
+        if isinstance(span, RouteBreak):
+            begins = span.kind
+            continue
+        chunk = lane_chunk(lines, codes, span.key, span.start, span.stop)
+        if not len(chunk):
+            empty += 1
+            if empty >= MAX_EMPTY_LANES:
+                raise RouteStalled(f"the route drove {empty} lanes in a row without covering a metre (last: road "
+                                   f"{codes.graph.road_id(span.key)} lane {span.key.lane_id})")
+            continue
+        empty = 0
+        if begins is not None:
+            chunk = PathChunk(chunk.points, chunk.speed_limit, chunk.lane_code, begins)
+            begins = None
+        yield chunk
 
 
 def with_speed(chunks: Iterable[PathChunk], speed: float | None) -> Iterator[PathChunk]:
@@ -132,4 +185,4 @@ def with_speed(chunks: Iterable[PathChunk], speed: float | None) -> Iterator[Pat
         if speed is None:
             yield chunk
         else:
-            yield PathChunk(chunk.points, np.full(len(chunk), float(speed)), chunk.lane_code)
+            yield PathChunk(chunk.points, np.full(len(chunk), float(speed)), chunk.lane_code, chunk.begins)

@@ -1,14 +1,33 @@
-"""Random routes that never dead-end: the next lane is drawn inside the largest strongly connected part.
+"""Random routes that always make progress: a walk through the lane graph that never stalls and never loops.
 
-netconvert's turnarounds (U-turns a car cannot drive inside its lane) are removed first. Lane changes are
-part of the walk, because on real networks turn lanes often make the follow-only graph fall apart. In the
-largest strongly connected component every lane reaches every other, so a next lane inside it always
-exists and the walk runs forever. The walk prefers driving on (follow edges); it changes lanes with
-probability ``lane_change_probability`` where the lane is long enough, and whenever it has to.
+Lanes: every driving lane except netconvert's turnarounds (U-turns a car cannot drive inside its lane) and
+bends tighter than ``min_radius``, measured the way a car meets them: heading change over one wheelbase of
+arc (``wheelbase_curvature``, the measure the junction curbs leave room for), so a kink of a polyline is not
+a "bend of radius 0.1 m". Lane changes are part of the walk, because on real networks turn lanes often
+make the follow-only graph fall apart.
+
+Where the walk goes, in order of preference:
+
+1. ``loop``: the largest strongly connected component of follow and lane-change edges that has a cycle
+   covering distance (a follow edge out of a lane of at least ``DEGENERATE_LANE``). A cycle of lane changes
+   alone never counts: changing lanes does not move a car along the road, and a walk that only changes
+   lanes would never get anywhere.
+2. ``turnaround``: where closed loops are missing or cover less than half of what turnarounds open up
+   (rural trees, a single two-way street, streets the extract cut off): at a dead end (a lane without a
+   follow edge and no lane change towards one) the walk turns around onto the nearest lane of the opposite
+   direction at the same end of the same road. The largest component of that graph is used.
+3. ``restart``: neither exists (one-way dead ends only): the walk drives until a dead end, then restarts
+   on a new random lane.
+
+Turnarounds and restarts appear in the walk as ``RouteBreak`` items; the twin performs them (docs/twin.md).
+Inside the chosen lanes every lane has a way on, lane changes are only made towards a lane that can drive
+on (or once, voluntarily, into a lane that can), so a run of lane changes is bounded by the lanes of one
+section and every step of the walk is bounded in time.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Iterator
 
 import networkx as nx
@@ -16,83 +35,221 @@ import numpy as np
 
 from tavf_mapkit.errors import InputError
 from tavf_mapkit.lanegraph import LaneGraph, LaneKey
+from tavf_mapkit.mesh.swept_path import wheelbase_curvature
 from twin.map.lanelines import LaneLines
-from twin.planning.chunks import LaneCodes, PathChunk, expand_route
+from twin.planning.chunks import DEGENERATE_LANE, RESTART, TURNAROUND, LaneCodes, PathChunk, RouteBreak, \
+    expand_route
 
 U_TURN = np.radians(135.0)
+MIN_RADIUS = 2.0  # m over a wheelbase: a car (minimum radius 4-6 m) cuts such a bend by more than 1.5 m
 MIN_LANE_CHANGE_LENGTH = 30.0  # m: shorter lanes change lanes only when they must
+TURNAROUND_SHARE = 0.5  # loops must cover this share of what turnarounds reach, else turnarounds are used
 
 
-def drivable_lanes(graph: LaneGraph, lines: LaneLines, min_radius: float) -> set[LaneKey]:
-    """Lanes without a U-turn (heading change over 135 degrees) or a bend tighter than ``min_radius``."""
-    keep = set()
-    for key in graph.keys:
-        points = lines[key].points
-        d = np.diff(points[:, :2], axis=0)
-        seg = np.hypot(d[:, 0], d[:, 1])
-        real = seg > 1e-3
-        heading = np.unwrap(np.arctan2(d[real, 1], d[real, 0]))
-        if len(heading) >= 2:
-            if abs(heading[-1] - heading[0]) > U_TURN:
-                continue
-            spans = 0.5 * (seg[real][1:] + seg[real][:-1])
-            if np.any(np.abs(np.diff(heading)) > spans / min_radius + 1e-3):
-                continue
-        keep.add(key)
-    return keep
+def undrivable_lanes(graph: LaneGraph, lines: LaneLines, min_radius: float = MIN_RADIUS) -> dict[LaneKey, str]:
+    """Lanes a car cannot drive in lane, with the reason: "u-turn" or "bend of radius R m".
+
+    A U-turn turns the car by more than 135 degrees: inside the lane, or (junction lanes) from the heading
+    of a lane before it to the heading of a lane after it; netconvert draws its turnarounds as a hairpin that
+    starts and ends at an angle to the roads it joins, so the lane alone turns only some 125 degrees.
+    A bend is the heading change over one wheelbase of arc, over that arc (``wheelbase_curvature``).
+    Sub-metre lanes add no points to a path (``DEGENERATE_LANE``) and count as drivable whatever their
+    shape."""
+    measured = [k for k in sorted(graph.keys) if lines[k].length >= DEGENERATE_LANE]
+    if not measured:
+        return {}
+    points = [lines[k].points[:, :2] for k in measured]
+    lane = np.repeat(np.arange(len(measured)), [len(p) for p in points])
+    points = np.concatenate(points)
+    curvature = np.zeros(len(measured))
+    np.maximum.at(curvature, lane, wheelbase_curvature(lane, points))
+    d = np.diff(points, axis=0)
+    heading = np.arctan2(d[:, 1], d[:, 0])
+    inside = (lane[1:-1] == lane[:-2]) & (lane[2:] == lane[1:-1])  # consecutive segments of one lane
+    turn = np.bincount(lane[1:-1][inside], weights=_wrap(np.diff(heading))[inside], minlength=len(measured))
+    last = np.r_[np.flatnonzero(lane[1:] != lane[:-1]), len(lane) - 1]
+    first = np.r_[0, last[:-1] + 1]
+    entry = dict(zip(measured, heading[first]))
+    leave = dict(zip(measured, heading[last - 1]))
+    found = {}
+    for k, bend, own in zip(measured, curvature, turn):
+        u_turn = abs(own) > U_TURN
+        if not u_turn and graph.odr.roads[k.road_index].in_junction:
+            before = [leave[p] for p in graph.predecessors(k) if p in leave]
+            after = [entry[q] for q in graph.successors(k) if q in entry]
+            u_turn = any(abs(_wrap(b - a)) > U_TURN for a in before for b in after)
+        if u_turn:
+            found[k] = "u-turn"
+        elif bend > 1.0 / min_radius:
+            found[k] = f"bend of radius {1.0 / bend:.2f} m"
+    return found
+
+
+def drivable_lanes(graph: LaneGraph, lines: LaneLines, min_radius: float = MIN_RADIUS) -> set[LaneKey]:
+    """The lanes of the graph without those of ``undrivable_lanes``."""
+    return set(graph.keys) - set(undrivable_lanes(graph, lines, min_radius))
+
+
+def _wrap(angle):
+    return (angle + np.pi) % (2 * np.pi) - np.pi
 
 
 class RandomRoutes:
-    def __init__(self, graph: LaneGraph, lines: LaneLines, min_radius: float = 3.0,
+    def __init__(self, graph: LaneGraph, lines: LaneLines, min_radius: float = MIN_RADIUS,
                  lane_change_probability: float = 0.2):
         self.graph = graph
         self.lines = lines
         self.lane_change_probability = lane_change_probability
-        keep = drivable_lanes(graph, lines, min_radius)
-        sub = nx.DiGraph()
-        sub.add_nodes_from(sorted(keep))
-        sub.add_edges_from((a, b, {"kind": kind}) for a, b, kind in graph.graph.edges(data="kind")
-                           if a in keep and b in keep)
-        components = [c for c in nx.strongly_connected_components(sub) if len(c) > 1]
-        if not components:
-            raise InputError("the lane graph has no closed loop of drivable lanes: random routes would dead-end")
-        best = max(components, key=lambda c: (sum(graph.length(k) for k in c), len(c), min(c)))
-        self.lanes = frozenset(best)
-        self._sorted = sorted(self.lanes)
-        self._follow: dict[LaneKey, list[LaneKey]] = {}
-        self._lateral: dict[LaneKey, list[LaneKey]] = {}
-        for key in self._sorted:
-            out = [(b, sub.edges[key, b]["kind"]) for b in sub.successors(key) if b in self.lanes]
-            self._follow[key] = sorted(b for b, kind in out if kind == "follow")
-            self._lateral[key] = sorted(b for b, kind in out if kind != "follow")
+        self.undrivable = undrivable_lanes(graph, lines, min_radius)
+        keep = set(graph.keys) - set(self.undrivable)
+        follow: dict[LaneKey, list[LaneKey]] = {k: [] for k in keep}
+        lateral: dict[LaneKey, list[LaneKey]] = {k: [] for k in keep}
+        for a, b, kind in graph.graph.edges(data="kind"):
+            if a in keep and b in keep:
+                (follow if kind == "follow" else lateral)[a].append(b)
+        turnaround = self._turnarounds(keep, follow)
+        loop = self._largest_progressing(keep, follow, lateral, {})
+        turning = self._largest_progressing(keep, follow, lateral, turnaround)
+        if loop and (not turning or self._length(loop) >= TURNAROUND_SHARE * self._length(turning)):
+            self.mode, lanes, turnaround = "loop", loop, {}
+        elif turning:
+            self.mode, lanes = "turnaround", turning
+        else:
+            self.mode, lanes = "restart", frozenset(keep)
+        self.lanes = lanes
+        self._sorted = sorted(lanes)
+        self._starts = [k for k in self._sorted if lines[k].length >= DEGENERATE_LANE]
+        if not self._starts:
+            raise InputError(f"the lane graph has no drivable lane of {DEGENERATE_LANE:g} m or more: "
+                             "there is nowhere to drive")
+        self._follow = {k: sorted(b for b in follow[k] if b in lanes) for k in self._sorted}
+        self._lateral = {k: sorted(b for b in lateral[k] if b in lanes) for k in self._sorted}
+        self._turnaround = {k: v[0] for k, v in turnaround.items() if k in lanes and v[0] in lanes}
+        self._towards = self._lane_changes_to_exits()
 
+    # ------------------------------------------------------------------ construction
+    def _turnarounds(self, keep: set[LaneKey], follow: dict) -> dict[LaneKey, list[LaneKey]]:
+        """Dead-end lane -> [where a car turns around: the nearest drivable lane of the opposite direction
+        that netconvert's turnaround from the lane's end leads into (the U-turn lane the car cannot drive in
+        lane, perhaps with sub-metre lanes around it), or that enters the same lane section at its end]."""
+        graph, lines = self.graph, self.lines
+        by_section: dict[tuple[int, int], list[LaneKey]] = {}
+        for key in sorted(keep):
+            by_section.setdefault((key.road_index, key.section_index), []).append(key)
+
+        def usable(k):
+            return k in keep and lines[k].length >= DEGENERATE_LANE
+
+        found = {}
+        for key in sorted(keep):
+            if follow[key]:
+                continue
+            targets = set()
+            frontier, passed = [(key, False)], set()
+            for _ in range(4):  # a U-turn lane and up to three sub-metre lanes
+                ahead = []
+                for a, turned in frontier:
+                    for b in graph.successors(a):
+                        if usable(b):
+                            if turned:
+                                targets.add(b)
+                        elif (b, turned) not in passed and (self.undrivable.get(b) == "u-turn" or b in keep):
+                            passed.add((b, turned))
+                            ahead.append((b, turned or self.undrivable.get(b) == "u-turn"))
+                frontier = ahead
+            forward = graph.drives_with_s(key)
+            targets.update(k for k in by_section[(key.road_index, key.section_index)]
+                           if graph.drives_with_s(k) is not forward and usable(k))
+            if targets:
+                end = lines[key].points[-1, :2]
+                found[key] = [min(targets, key=lambda k: (float(np.hypot(*(lines[k].points[0, :2] - end))), k))]
+        return found
+
+    def _length(self, lanes) -> float:
+        return float(sum(self.lines[k].length for k in lanes))
+
+    def _largest_progressing(self, keep, follow, lateral, turnaround) -> frozenset | None:
+        """The longest strongly connected set of lanes (follow, lane-change and the given turnaround edges)
+        with a cycle that covers distance: a follow or turnaround edge out of a lane of at least
+        ``DEGENERATE_LANE`` inside the set. Lane-change-only cycles never qualify."""
+        graph = nx.DiGraph()
+        graph.add_nodes_from(sorted(keep))
+        forward = [(a, b) for a in sorted(keep) for b in follow[a] + turnaround.get(a, [])]
+        graph.add_edges_from(forward)
+        graph.add_edges_from((a, b) for a in sorted(keep) for b in lateral[a])
+        best, best_rank = None, None
+        for component in nx.strongly_connected_components(graph):
+            if not any(a in component and b in component and self.lines[a].length >= DEGENERATE_LANE
+                       for a, b in forward if a in component):
+                continue
+            rank = (self._length(component), len(component), min(component))
+            if best_rank is None or rank > best_rank:
+                best, best_rank = frozenset(component), rank
+        return best
+
+    def _lane_changes_to_exits(self) -> dict[LaneKey, list[LaneKey]]:
+        """For lanes without a follow edge: the lane changes that lead, by the fewest changes, to a lane that
+        drives on (a follow edge, else a turnaround). Lanes that lead nowhere are dead ends (restart)."""
+        towards: dict[LaneKey, list[LaneKey]] = {}
+        changes_in = {k: [] for k in self._sorted}
+        for a in self._sorted:
+            for b in self._lateral[a]:
+                changes_in[b].append(a)
+        for exits in ([k for k in self._sorted if self._follow[k]], [k for k in self._sorted if k in self._turnaround]):
+            distance = {k: 0 for k in exits}
+            queue = deque(exits)
+            while queue:
+                b = queue.popleft()
+                for a in sorted(changes_in[b]):
+                    if a not in distance and a not in towards and not self._follow[a]:
+                        distance[a] = distance[b] + 1
+                        queue.append(a)
+            for a, d in distance.items():
+                if d > 0:
+                    towards[a] = sorted(b for b in self._lateral[a] if distance.get(b) == d - 1)
+        return towards
+
+    # ------------------------------------------------------------------ the walk
     @property
     def length(self) -> float:
-        return float(sum(self.graph.length(k) for k in self._sorted))
+        return self._length(self._sorted)
 
     def start_lane(self, rng: np.random.Generator) -> LaneKey:
         """A lane drawn with probability proportional to its length (so starts spread over the network)."""
-        lengths = np.array([self.lines[k].length for k in self._sorted]) + 1.0
-        return self._sorted[int(rng.choice(len(self._sorted), p=lengths / lengths.sum()))]
+        lengths = np.array([self.lines[k].length for k in self._starts]) + 1.0
+        return self._starts[int(rng.choice(len(self._starts), p=lengths / lengths.sum()))]
 
-    def next_lane(self, key: LaneKey, rng: np.random.Generator, came_from: LaneKey | None = None) -> LaneKey:
+    def next_lane(self, key: LaneKey, rng: np.random.Generator,
+                  came_from: LaneKey | None = None) -> tuple[RouteBreak | None, LaneKey]:
+        """(None, the lane to drive next) or (TURNAROUND / RESTART, the lane the car goes on from)."""
         follow = self._follow[key]
-        # never straight back to the lane we just changed from, unless there is nothing else
-        lateral = [k for k in self._lateral[key] if k != came_from] or self._lateral[key]
-        may_change = lateral and came_from is None and self.lines[key].length >= MIN_LANE_CHANGE_LENGTH
-        if follow and not (may_change and rng.random() < self.lane_change_probability):
-            return follow[int(rng.integers(len(follow)))]
-        if not lateral:
-            return follow[int(rng.integers(len(follow)))]
-        return lateral[int(rng.integers(len(lateral)))]
+        if follow:
+            # a voluntary lane change only into a lane that drives on, never straight back
+            lateral = [k for k in self._lateral[key] if k != came_from and self._follow[k]]
+            may_change = lateral and came_from is None and self.lines[key].length >= MIN_LANE_CHANGE_LENGTH
+            if may_change and rng.random() < self.lane_change_probability:
+                return None, lateral[int(rng.integers(len(lateral)))]
+            return None, follow[int(rng.integers(len(follow)))]
+        towards = self._towards.get(key)
+        if towards:
+            return None, towards[int(rng.integers(len(towards)))]
+        if key in self._turnaround:
+            return TURNAROUND, self._turnaround[key]
+        return RESTART, self.start_lane(rng)
 
-    def walk(self, rng: np.random.Generator, start: LaneKey | None = None) -> Iterator[LaneKey]:
+    def walk(self, rng: np.random.Generator, start: LaneKey | None = None) -> Iterator[LaneKey | RouteBreak]:
+        """Lanes in driving order, endless; a ``RouteBreak`` before the lane a turnaround or restart goes on
+        from."""
         key = self.start_lane(rng) if start is None else start
         came_from = None
         while True:
             yield key
-            following = self.next_lane(key, rng, came_from)
-            came_from = key if following in self._lateral[key] else None
+            jump, following = self.next_lane(key, rng, came_from)
+            if jump is not None:
+                yield jump
+                came_from = None
+            else:
+                came_from = key if following in self._lateral[key] else None
             key = following
 
     def chunks(self, codes: LaneCodes, rng: np.random.Generator, start: LaneKey | None = None,

@@ -4,6 +4,9 @@ Each ``step`` controls, moves and grounds every vehicle at once, then applies th
 simulation enforces: a wheel that jumps up a curb or a box that touches a static solid (curb, building,
 object) stops the car and is logged as a collision; a stopped-by-collision, lost (more than ``lost_m`` off
 its path) or stuck car is reset onto its path and counted; after a collision it is reset past the obstacle.
+A car that has stopped at the end of a path which goes on after a turnaround or restart (random routes on
+networks without closed loops) is moved onto the path's next part at rest, and counted as a turnaround or a
+restart, not as a reset (docs/twin.md, "Routes").
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ from twin.vehicle.body import CURB_STEP, Ground, VehicleBodies
 from twin.vehicle.dynamics import BicycleModel, BicycleState, stopped
 
 OBSTACLE_SKIP_M = 8.0  # a car that hit something on its path is reset this far ahead (> a car length)
+BREAK_MARGIN_M = 2.0  # a car this close to the end of its path, nearly stopped, has arrived at a route break
 
 
 @dataclass(frozen=True)
@@ -31,11 +35,28 @@ class Collision:
     detail: str = ""
 
 
+@dataclass(frozen=True)
+class Jump:
+    """A car moved from the end of its path to the next part of its route (a turnaround or a restart)."""
+
+    t: float
+    vehicle: int
+    kind: str  # "turnaround" or "restart"
+    x0: float
+    y0: float
+    x1: float
+    y1: float
+
+
 @dataclass
 class FleetCounters:
     resets: np.ndarray
     collisions: list[Collision] = field(default_factory=list)
     stuck_seconds: np.ndarray | None = None
+    jumps: list[Jump] = field(default_factory=list)
+
+    def count_jumps(self, kind: str, vehicle: int | None = None) -> int:
+        return sum(1 for j in self.jumps if j.kind == kind and (vehicle is None or j.vehicle == vehicle))
 
 
 class Fleet:
@@ -119,6 +140,18 @@ class Fleet:
             counters.resets += reset
             counters.stuck_seconds = np.where(reset, 0.0, counters.stuck_seconds)
             self.place_on_paths(reset)
+        arrived = self.buffer.at_break(control.projection.s, BREAK_MARGIN_M) & (state.speed < 0.5) & ~reset
+        if np.any(arrived):
+            self._jump(t, arrived)
+
+    def _jump(self, t: float, mask: np.ndarray) -> None:
+        """Move the masked cars, stopped at the end of their paths, onto their routes' next parts."""
+        before = self.state
+        kinds = {int(i): self.buffer.jump(int(i)) for i in np.flatnonzero(mask)}
+        self.place_on_paths(mask)
+        for i, kind in kinds.items():
+            self.counters.jumps.append(Jump(float(t), i, kind, float(before.x[i]), float(before.y[i]),
+                                            float(self.state.x[i]), float(self.state.y[i])))
 
     def record_collision(self, t: float, vehicle: int, kind: str, other: str, detail: str = "") -> None:
         self._log(t, vehicle, kind, other, self.state, detail)

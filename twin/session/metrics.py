@@ -43,12 +43,16 @@ def session_metrics(session, recorder, wall: float, setup: float) -> dict:
     off_road = (off_lane > OFF_ROAD_TOLERANCE) & ~on_road_surface
     ego_collisions = [c for c in fleet.counters.collisions if c.vehicle == 0]
     distance = float(np.sum(np.hypot(np.diff(x), np.diff(y)))) if recorder.n > 1 else 0.0
+    # a turnaround or restart moves the car without driving: not distance driven
+    distance -= sum(float(np.hypot(j.x1 - j.x0, j.y1 - j.y0)) for j in fleet.counters.jumps if j.vehicle == 0)
     metrics = {
         "sim_seconds": round(sim_seconds, 6),
         "wall_seconds": round(wall, 3),
         "real_time_factor": round(sim_seconds / wall, 2) if wall > 0 else None,
         "resets": int(fleet.counters.resets[0]),
         "collisions": len(ego_collisions),
+        "turnarounds": fleet.counters.count_jumps("turnaround", 0),
+        "restarts": fleet.counters.count_jumps("restart", 0),
         "off_road_seconds": round(float(np.count_nonzero(off_road)) * dt, 6),
         "off_lane_max_m": round(float(off_lane.max(initial=0.0)), 4),
         "off_surface_seconds": round(float(np.count_nonzero(~on_road_surface)) * dt, 6),
@@ -68,10 +72,15 @@ def session_metrics(session, recorder, wall: float, setup: float) -> dict:
     if fleet.count > 1:
         metrics["fleet_resets"] = int(fleet.counters.resets.sum())
         metrics["fleet_collisions"] = len(fleet.counters.collisions)
+        metrics["fleet_turnarounds"] = fleet.counters.count_jumps("turnaround")
+        metrics["fleet_restarts"] = fleet.counters.count_jumps("restart")
     if session.lidar is not None:
         metrics["lidar_scans"] = recorder.lidar_scans
     if session.camera is not None:
         metrics["camera_frames"] = recorder.camera_frames
+    random_routes = session.random_routes
+    if random_routes is not None:
+        metrics["route_mode"] = random_routes.mode
     route = session.route
     if route is not None:
         fx, fy = route.matched_xy
