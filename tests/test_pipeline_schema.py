@@ -41,6 +41,12 @@ SAMPLE = REPO / "sample_data" / "tavf_synthetic.osm"
     ('[check.thresholds]\ngnss_median_distance_m = nan\n',
      "[check.thresholds] gnss_median_distance_m must be a number >= 0 (metres), not nan"),
     ('[mesh]\neps = 0\n', "[mesh] eps must be a positive number of metres, not 0"),
+    ('[check.validation]\nmax_errors = -1\n',
+     "[check.validation] max_errors must be a whole number >= 0, not -1"),
+    ('[check.validation]\nmax_warnings = 2.5\n',
+     "[check.validation] max_warnings must be a whole number >= 0, not 2.5"),
+    ('[check.validation.rules]\n"geometry.gap" = true\n',
+     "[check.validation.rules] geometry.gap must be a whole number >= 0, not true"),
     ('[area]\nbbox = [9.9, 53.5, 190.0, 53.6]\n',
      "[area] bbox 9.9,53.5,190.0,53.6 is outside lon -180..180 / lat -90..90"),
     # unknown keys and tables
@@ -75,3 +81,19 @@ def test_every_key_of_the_example_pipeline_is_known():
     config = load_pipeline(REPO / "pipelines" / "tavf.toml")
     assert set(config.sections) == {"area", "extract", "netconvert", "mesh", "collision", "check"}
     assert len(config.section("check")["thresholds"]) == 6
+
+
+def test_validation_limits_name_known_rules(tmp_path):
+    from tavf_mapkit.errors import InputError
+
+    pipeline = tmp_path / "limits.toml"
+    pipeline.write_text('[check.validation]\nmax_errors = 3\n'
+                        '[check.validation.rules]\n"topology.contact-gap" = 2\n')
+    assert load_pipeline(pipeline).section("check")["validation"] == {
+        "max_errors": 3, "rules": {"topology.contact-gap": 2}}
+    pipeline.write_text('[check.validation.rules]\n"topology.contact-gapp" = 2\n')
+    with pytest.raises(InputError) as raised:
+        load_pipeline(pipeline)
+    assert str(raised.value).startswith(
+        f"{pipeline}: [check.validation.rules] unknown key 'topology.contact-gapp' (known: ")
+    assert "topology.contact-gap," in str(raised.value)

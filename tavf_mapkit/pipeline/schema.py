@@ -41,6 +41,11 @@ def fraction() -> Setting:
     return Setting("a number from 0 to 1", lambda value: _is_number(value) and 0 <= value <= 1)
 
 
+def count() -> Setting:
+    return Setting("a whole number >= 0", lambda value: isinstance(value, int) and not isinstance(value, bool)
+                   and value >= 0)
+
+
 def boolean() -> Setting:
     return Setting("true or false", lambda value: isinstance(value, bool))
 
@@ -82,6 +87,14 @@ def _thresholds() -> dict[str, Setting]:
     return settings
 
 
+def _validation() -> dict:
+    """[check.validation]: how many validation findings the build's OpenDRIVE may have;
+    [check.validation.rules] takes validator rule ids as keys (a typo is an unknown key, not a limit that never applies)."""
+    from tavf_mapkit.validate import all_rules
+
+    return {"max_errors": count(), "max_warnings": count(), "rules": {rule: count() for rule in all_rules()}}
+
+
 def _tables() -> dict[str, dict]:
     """Table name -> {key: Setting, or a dict for a nested table}; built on use (imports the check stage)."""
     from tavf_mapkit.netconvert import CRS_CHOICES
@@ -95,7 +108,7 @@ def _tables() -> dict[str, dict]:
         "mesh": {"eps": metres(), "tile": metres(), "format": choice("glb", "obj"), "solids": boolean()},
         "collision": {"eps": metres(), "tile": metres()},
         "check": {"reference_network_path": file_path(), "gnss_trace_path": file_path(),
-                  "thresholds": _thresholds()},
+                  "thresholds": _thresholds(), "validation": _validation()},
         "report": {},
     }
 

@@ -106,6 +106,17 @@ def report_text(report: dict) -> str:
             lines.append(f"    {count:4d} x {_shorten(kind, 88)}")
         for note in netconvert.get("notes") or []:
             lines.append(f"    note: {_shorten(note, 100)}")
+    stages = report.get("stages") or {}
+    repairs = (stages.get("opendrive") or {}).get("repairs")
+    if repairs is not None:
+        from tavf_mapkit.pipeline.builtin.check import repair_rows
+
+        rows = repair_rows(repairs)
+        lines.append("repairs " + (", ".join(f"{row['repair']} {row['count']}" if row["count"] is not None
+                                             else row["repair"] for row in rows) or "none needed"))
+    check = stages.get("check")
+    if check and check.get("status"):
+        lines.append(check_line(check))
     side = report.get("driving_side")
     if side:
         lines.append(f"side    {side['reason']}")
@@ -119,6 +130,21 @@ def report_text(report: dict) -> str:
     if report.get("attribution"):
         lines.append(f"data    {report['attribution']}")
     return "\n".join(lines)
+
+
+def check_line(check: dict) -> str:
+    """The check stage's verdict in one line: what failed against which limit, and the page to read."""
+    status = check["status"]
+    by_rule = check.get("validate_errors_by_rule") or {}
+    errors = ", ".join(f"{rule} {n}" for rule, n in sorted(by_rule.items(), key=lambda item: -item[1])[:3])
+    more = f" (+{len(by_rule) - 3} rules)" if len(by_rule) > 3 else ""
+    line = (f"check   {status.upper()}: {check.get('validate_errors')} validation errors"
+            + (f" ({errors}{more})" if errors else "") + f", {check.get('validate_warnings')} warnings")
+    failed = check.get("failed_checks") or []
+    if failed:
+        line += "; over the limit: " + "; ".join(
+            f"{c['what']} {c['value']} {'>' if c.get('kind') == 'max' else '<'} {c['limit']}" for c in failed)
+    return line + " (report/index.html)"
 
 
 def render_summary(manifest: dict, folder: Path) -> str:

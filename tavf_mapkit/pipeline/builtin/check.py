@@ -3,8 +3,14 @@ the references the pipeline file names ([check] reference_network_path, gnss_tra
 thresholds of [check.thresholds]. Writes report/check.json, report/validate.json, report/compare.json,
 report/match-trace.json, PNG plots and report/index.html (one self-contained page).
 
-A threshold that is not met is reported (facts, check.json, the page), not fatal: the build is still usable,
-and CI guards accuracy through the baselines of tests/test_accuracy_regression.py.
+The verdict counts validation findings too ([check.validation]): by default every validation error of the
+build's OpenDRIVE fails the check (``max_errors = 0``); ``max_warnings`` limits warnings, and
+``[check.validation.rules]`` gives single rules their own limit (their findings then count only there). The
+page lists the findings per rule and the repairs the opendrive stage recorded in its facts (``repairs``).
+
+A threshold that is not met is reported (facts, check.json, the page, the build's summary), not fatal: the
+build is still usable and exits 0 (docs/build-folder.md); CI guards accuracy through the baselines of
+tests/test_accuracy_regression.py.
 """
 
 from __future__ import annotations
@@ -31,11 +37,12 @@ THRESHOLDS = {
 @register_stage("check")
 class CheckStage(Stage):
     inputs = ("xodr",)
-    version = "2"  # 2: compare.json names the xodr by file name
+    version = "3"  # 2: compare.json names the xodr by file name; 3: validation findings in the verdict
     description = "validate, georeference round trip, compare / match-trace against the pipeline's references"
 
     def options(self, context: BuildContext) -> dict:
-        return {"check": context.section("check")}
+        # the opendrive stage's repairs are shown on the page, so they decide whether it is up to date
+        return {"check": context.section("check"), "repairs": _repairs(context)}
 
     def run(self, context: BuildContext) -> StageOutput:
         from tavf_mapkit.opendrive import load_opendrive
@@ -57,10 +64,14 @@ class CheckStage(Stage):
         trace = section.get("gnss_trace_path")
         if trace is not None:
             results["match"] = self._match(context, odr, trace, files)
-        checks = _evaluate(results, thresholds)
+        checks = _validation_checks(results["validate"], section.get("validation") or {})
+        checks += _evaluate(results, thresholds)
         results["checks"] = checks
+        results["repairs"] = _repairs(context)
         failed = [c for c in checks if c["passed"] is False]
-        results["status"] = "fail" if failed else "pass"
+        unchecked = any(c["passed"] is None for c in checks if c["key"].startswith("validation."))
+        # never "pass" for a file whose validation did not run: that would claim what nobody checked
+        results["status"] = "fail" if failed else "unchecked" if unchecked else "pass"
         for check in failed:
             context.note(f"check failed: {check['what']} = {check['value']} (threshold {check['limit']})")
         path = context.output_path("report/check.json")
@@ -73,6 +84,9 @@ class CheckStage(Stage):
         facts = {
             "status": results["status"], "failed": [c["key"] for c in failed],
             "validate_errors": validate.get("errors"), "validate_warnings": validate.get("warnings"),
+            "validate_errors_by_rule": validate.get("errors_by_rule"),
+            "failed_checks": [{key: c.get(key) for key in ("key", "what", "value", "limit", "kind")}
+                              for c in failed],
             "georeference_roundtrip_m": results["georeference"]["roundtrip_m"],
         }
         compare = results.get("compare") or {}
@@ -94,7 +108,7 @@ class CheckStage(Stage):
         context.output_path("report/validate.json").write_text(json.dumps(report.to_dict(), indent=2) + "\n",
                                                                encoding="utf-8")
         files["validate_report"] = "report/validate.json"
-        return dict(report.summary)
+        return {**report.summary, **_findings_by_rule(report)}
 
     def _compare(self, context, xodr, reference, files) -> dict:
         from tavf_mapkit.accuracy.compare import compare_networks
@@ -146,6 +160,77 @@ def _roundtrip(odr) -> dict:
     return {"roundtrip_m": round(error, 9), "points": int(x.size)}
 
 
+def _findings_by_rule(report) -> dict:
+    """Per severity the count of each rule, and each rule's first finding (where and what, for the page)."""
+    from collections import Counter
+
+    counts = {"error": Counter(), "warning": Counter(), "info": Counter()}
+    first: dict[str, str] = {}
+    for finding in report.findings:
+        counts[finding.severity][finding.rule] += 1
+        first.setdefault(finding.rule, str(finding).split(None, 2)[-1])  # without severity and rule id
+    return {"errors_by_rule": dict(sorted(counts["error"].items())),
+            "warnings_by_rule": dict(sorted(counts["warning"].items())),
+            "info_by_rule": dict(sorted(counts["info"].items())), "first_by_rule": first}
+
+
+def _validation_checks(validate: dict | None, limits: dict) -> list[dict]:
+    """Checks on the validation findings: one per rule with its own limit, then errors and (when limited)
+    warnings of all other rules. Without a validation report they cannot pass or fail (n/a)."""
+    rules = limits.get("rules") or {}
+    checks = []
+    counts = {}
+    if validate is not None:
+        for key in ("errors_by_rule", "warnings_by_rule", "info_by_rule"):
+            for rule, n in (validate.get(key) or {}).items():
+                counts[rule] = counts.get(rule, 0) + n
+    for rule, limit in sorted(rules.items()):
+        value = counts.get(rule, 0) if validate is not None else None
+        checks.append({"key": f"validation.rules.{rule}", "what": f"validation findings of {rule}",
+                       "value": value, "limit": limit, "kind": "max",
+                       "passed": None if value is None else value <= limit})
+    for severity, key, default in (("errors", "max_errors", 0), ("warnings", "max_warnings", None)):
+        limit = limits.get(key, default)
+        if limit is None:
+            continue
+        value = None
+        if validate is not None:
+            by_rule = validate.get(f"{severity}_by_rule") or {}
+            value = sum(n for rule, n in by_rule.items() if rule not in rules)
+        what = f"validation {severity}" + (" (rules without their own limit)" if rules else "")
+        checks.append({"key": f"validation.{key}", "what": what, "value": value, "limit": limit,
+                       "kind": "max",
+                       "passed": None if value is None else value <= limit})
+    return checks
+
+
+def _repairs(context: BuildContext) -> list[dict] | None:
+    """The opendrive stage's repairs as rows; None when it recorded none at all (not even "none needed")."""
+    repairs = (context.facts.get("opendrive") or {}).get("repairs")
+    return None if repairs is None else repair_rows(repairs)
+
+
+def repair_rows(repairs) -> list[dict]:
+    """The repairs the opendrive stage recorded in its facts (``repairs``), as rows {repair, count, detail}.
+
+    Read generically: a mapping {repair: count} or {repair: {count, ...}}, or a list of mappings with a name
+    under ``repair``/``kind``/``name``; anything else of an entry is kept as its detail."""
+    if isinstance(repairs, dict):
+        entries = [{"repair": name, **(value if isinstance(value, dict) else {"count": value})}
+                   for name, value in repairs.items()]
+    elif isinstance(repairs, list):
+        entries = [entry if isinstance(entry, dict) else {"repair": entry} for entry in repairs]
+    else:
+        return []
+    rows = []
+    for entry in entries:
+        entry = dict(entry)
+        name = next((entry.pop(key) for key in ("repair", "kind", "name") if key in entry), "repair")
+        count = entry.pop("count", None)
+        rows.append({"repair": str(name), "count": count, "detail": entry or None})
+    return rows
+
+
 def _evaluate(results: dict, thresholds: dict) -> list[dict]:
     checks = []
     for key, limit in thresholds.items():
@@ -167,16 +252,42 @@ def _evaluate(results: dict, thresholds: dict) -> list[dict]:
 
 
 def _html(results: dict, context) -> str:
-    """One small page, images embedded, no external resources."""
+    """One small page, images embedded, no external resources: verdict, checks, findings per rule, repairs."""
     import base64
     import html
+
+    def cell(value) -> str:
+        return f"<td>{html.escape('' if value is None else str(value))}</td>"
 
     rows = []
     for check in results["checks"]:
         state = {True: "pass", False: "FAIL", None: "n/a"}[check["passed"]]
-        rows.append(f"<tr class='{state.lower().replace('/', '')}'><td>{html.escape(check['what'])}</td>"
-                    f"<td>{check['value']}</td><td>{'&le;' if check.get('kind') == 'max' else '&ge;'} "
-                    f"{check['limit']}</td><td>{state}</td></tr>")
+        rows.append(f"<tr class='{state.lower().replace('/', '')}'>"
+                    f"{cell(check['what'])}{cell(check['value'])}"
+                    f"<td>{'&le;' if check.get('kind') == 'max' else '&ge;'} {check['limit']}</td>"
+                    f"<td>{state}</td></tr>")
+    validate = results.get("validate") or {}
+    limits = {c["key"].removeprefix("validation.rules."): c for c in results["checks"]
+              if c["key"].startswith("validation.rules.")}
+    findings = []
+    severities = (("error", "errors_by_rule"), ("warning", "warnings_by_rule"), ("info", "info_by_rule"))
+    for severity, key in severities:
+        for rule, count in sorted((validate.get(key) or {}).items(), key=lambda item: -item[1]):
+            own = limits.get(rule)
+            state = ("FAIL" if own and own["passed"] is False else "within its limit" if own else
+                     "counted" if severity == "error" else "")
+            findings.append(f"<tr class='{'fail' if state == 'FAIL' else severity}'>"
+                            f"{cell(rule)}{cell(severity)}"
+                            f"{cell(count)}{cell(own['limit'] if own else None)}{cell(state)}"
+                            f"{cell((validate.get('first_by_rule') or {}).get(rule))}</tr>")
+    def detail(entry: dict | None) -> str | None:
+        if not entry:
+            return None
+        return "; ".join(f"{key}: {', '.join(map(str, value)) if isinstance(value, list) else value}"
+                         for key, value in entry.items())
+
+    repairs = [f"<tr>{cell(r['repair'])}{cell(r['count'])}{cell(detail(r['detail']))}</tr>"
+               for r in results.get("repairs") or []]
     images = []
     for name, caption in (("compare.png", "build lanes by distance to the reference network"),
                           ("match-trace.png", "GNSS fixes by distance to their matched lane")):
@@ -185,17 +296,32 @@ def _html(results: dict, context) -> str:
             data = base64.b64encode(path.read_bytes()).decode("ascii")
             images.append(f"<figure><img alt='{caption}' src='data:image/png;base64,{data}'>"
                           f"<figcaption>{caption}</figcaption></figure>")
-    validate = results.get("validate") or {}
-    summary = (f"validate: {validate.get('errors')} errors, {validate.get('warnings')} warnings"
-               if validate else "validate: not run")
+    summary = (f"validation: {validate.get('errors')} errors, {validate.get('warnings')} warnings"
+               if validate else "validation: not run")
+    failed = [c for c in results["checks"] if c["passed"] is False]
+    because = ("; failed: " + "; ".join(f"{c['what']} {c['value']} (limit {c['limit']})" for c in failed)
+               if failed else "")
+    findings_table = (f"<table><tr><th>rule</th><th>severity</th><th>findings</th><th>own limit</th><th></th>"
+                      f"<th>first finding</th></tr>{''.join(findings)}</table>" if findings else
+                      "<p>No findings.</p>" if validate else "<p>Validation did not run.</p>")
+    repairs_table = (f"<table><tr><th>repair</th><th>count</th><th>detail</th></tr>{''.join(repairs)}</table>"
+                     if repairs else "<p>None were needed.</p>" if results.get("repairs") is not None else
+                     "<p>None recorded by the opendrive stage.</p>")
+    status = results["status"]
     return f"""<!doctype html>
-<html lang="en"><head><meta charset="utf-8"><title>check: {html.escape(results['file'])}</title>
-<style>body{{font:14px sans-serif;margin:2em;max-width:60em}}td,th{{padding:.2em .8em;text-align:left}}
-tr.fail td{{color:#b00;font-weight:bold}}tr.pass td:last-child{{color:#070}}img{{max-width:100%}}</style></head>
-<body><h1>Accuracy check of {html.escape(results['file'])}: {results['status']}</h1>
-<p>{html.escape(summary)}; georeference round trip {results['georeference'].get('roundtrip_m')} m.
+<html lang="en"><head><meta charset="utf-8"><title>check: {html.escape(results['file'])}: {status}</title>
+<style>body{{font:14px sans-serif;margin:2em;max-width:70em}}td,th{{padding:.2em .8em;text-align:left}}
+tr.fail td,tr.error td{{color:#b00}}tr.fail td{{font-weight:bold}}tr.pass td:last-child{{color:#070}}
+h1.fail,h1.unchecked{{color:#b00}}h1.pass{{color:#070}}img{{max-width:100%}}</style></head>
+<body><h1 class='{status}'>Check of {html.escape(results['file'])}: {status.upper()}</h1>
+<p>{html.escape(summary + because)}; georeference round trip {results['georeference'].get('roundtrip_m')} m.
 Details: check.json, validate.json, compare.json, match-trace.json in this folder.</p>
+<h2>Checks</h2>
 <table><tr><th>check</th><th>value</th><th>threshold</th><th></th></tr>{''.join(rows)}</table>
+<h2>Validation findings by rule</h2>
+{findings_table}
+<h2>Repairs of the OpenDRIVE</h2>
+{repairs_table}
 {''.join(images)}
 </body></html>
 """
