@@ -190,6 +190,10 @@ class _Reader:
         geo_text = None
         if geo is not None:
             geo_text = "".join(geo.itertext()).strip() or None
+            if geo_text is None:  # e.g. CommonRoad's converter writes a placeholder <TODO/>
+                inside = ", ".join(f"<{_local(child.tag)}/>" for child in geo if isinstance(child.tag, str))
+                self.warn("geoReference holds no PROJ string" + (f" (only {inside})" if inside else "")
+                          + ": the map is not georeferenced", geo)
         known = {"geoReference", "offset"}
         return Header(
             rev_major=self.integer(element, "revMajor", 1), rev_minor=self.integer(element, "revMinor", 4),
