@@ -9,20 +9,25 @@ from tavf_mapkit.pipeline.manifest import OSM_ATTRIBUTION
 
 
 def opendrive_counts(xodr: Path) -> dict:
-    """Roads, junctions, signals, objects and total road length of an OpenDRIVE file (one streaming pass)."""
+    """Roads, junctions, signals, objects and total road length of an OpenDRIVE file (one streaming pass).
+
+    Tags are matched in any namespace: some writers put OpenDRIVE in a default namespace (the A9 HD map)."""
     from lxml import etree
+
+    from tavf_mapkit.xmlsafe import iterparse_safe, read_xml_source
 
     counts = {"roads": 0, "junctions": 0, "signals": 0, "objects": 0, "road_length_km": 0.0}
     length = 0.0
-    context = etree.iterparse(str(xodr), events=("end",), tag=("road", "junction", "signal", "object"),
-                              resolve_entities=False, no_network=True, load_dtd=False, huge_tree=True)
+    context = iterparse_safe(read_xml_source(xodr), events=("end",),
+                             tag=("{*}road", "{*}junction", "{*}signal", "{*}object"))
     for _event, element in context:
-        tag = element.tag
+        tag = etree.QName(element).localname
         if tag == "road":
             counts["roads"] += 1
             length += float(element.get("length", 0.0) or 0.0)
             element.clear()
-        elif tag == "junction" and element.getparent() is not None and element.getparent().tag == "OpenDRIVE":
+        elif tag == "junction" and element.getparent() is not None \
+                and etree.QName(element.getparent()).localname == "OpenDRIVE":
             counts["junctions"] += 1
         elif tag == "signal":
             counts["signals"] += 1
