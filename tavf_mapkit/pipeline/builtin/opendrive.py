@@ -1,9 +1,15 @@
 """Stage "opendrive": read netconvert's OpenDRIVE with our exact reader, check its georeference, and record
 what it holds (report/opendrive.json). A file our reader cannot read fails the build here, not in the mesher.
 
+netconvert's output is never trusted: a vertex it could not compute (SUMO's invalid-position sentinel), one
+off Earth or far outside the network's extent, and absurd lengths are repaired (tavf_mapkit/opendrive/repair.py)
+and NAME.xodr is rewritten; each repair is counted in the facts (``repairs``) and named in the build's output.
+A file broken beyond repair fails here with one line naming road and line.
+
 When the build's input is an OpenDRIVE file (no extract, no netconvert), this stage brings it into the build
 as NAME.xodr (tavf_mapkit/opendrive/importing.py) and decides the driving side from its roads' ``rule``
-(or [pipeline] driving_side / --driving-side)."""
+(or [pipeline] driving_side / --driving-side). Its defects are the user's to fix: an implausible number
+refuses the build with one line naming the file's road and line (the sampling budget, when it is summarised)."""
 
 from __future__ import annotations
 
@@ -16,7 +22,7 @@ from tavf_mapkit.pipeline.stages import Stage, StageOutput, register_stage
 @register_stage("opendrive")
 class OpenDriveStage(Stage):
     inputs = ("xodr",)
-    version = "2"  # 2: an OpenDRIVE input becomes the build's NAME.xodr
+    version = "3"  # 2: an OpenDRIVE input becomes the build's NAME.xodr; 3: netconvert's output repaired
     description = "read and check the OpenDRIVE (counts, bounds, georeference plausibility)"
 
     def options(self, context: BuildContext) -> dict:
@@ -25,12 +31,15 @@ class OpenDriveStage(Stage):
     def run(self, context: BuildContext) -> StageOutput:
         from tavf_mapkit.opendrive.summary import summarise
 
-        files, imported = {}, {}
+        files, more_facts = {}, {}
         if context.input_kind == "opendrive":
-            odr, imported = _import_input(context)
+            odr, more_facts = _import_input(context)
             files["xodr"] = f"{context.name}.xodr"
         else:
-            odr = context.opendrive()
+            odr, repairs = _repaired_netconvert_output(context)
+            if repairs:  # the rewritten NAME.xodr is this stage's output from now on
+                files["xodr"] = str(context.artifacts["xodr"].relative_to(context.folder))
+            more_facts["repairs"] = repair_facts(repairs)
         summary = summarise(odr)
         summary["file"] = files.get("xodr") or context.artifacts["xodr"].name
         path = context.output_path("report/opendrive.json")
@@ -46,9 +55,69 @@ class OpenDriveStage(Stage):
             "georeference_plausible": bool(geo.get("plausible", False)),
             "carla_readable": bool(geo.get("carla_readable", False)),
             "bounds_wgs84": {k: round(v, 7) for k, v in (geo.get("bounds_wgs84") or {}).items()},
-            **imported,
+            **more_facts,
         }
         return StageOutput(files={**files, "opendrive_report": "report/opendrive.json"}, facts=facts)
+
+
+#: netconvert's output with more dropped roads than this share (and at least MAX_DROPPED_MIN) is not repaired
+MAX_DROPPED_SHARE = 0.05
+MAX_DROPPED_MIN = 10
+
+
+def _repaired_netconvert_output(context: BuildContext):
+    """netconvert's OpenDRIVE with its impossible geometry repaired (NAME.xodr rewritten when anything was)."""
+    from tavf_mapkit.errors import StageError
+    from tavf_mapkit.opendrive.repair import DROPPED_ROAD, repair_untrusted_geometry
+    from tavf_mapkit.opendrive.writer import write_opendrive
+
+    odr = context.opendrive()
+    repaired, repairs = repair_untrusted_geometry(odr, _network_extent(context))
+    if not repairs:
+        return odr, []
+    dropped = [repair for repair in repairs if repair.action == DROPPED_ROAD]
+    xodr = context.artifacts["xodr"]
+    if len(dropped) > max(MAX_DROPPED_MIN, MAX_DROPPED_SHARE * len(odr.roads)):
+        first = dropped[0]
+        raise StageError(f"netconvert's OpenDRIVE is broken beyond repair ({len(dropped)} of {len(odr.roads)} "
+                         f"roads would be dropped); the first: {first.detail}", file=xodr.name, line=first.line,
+                         road=first.road)
+    for repair in repairs[:5]:
+        context.note(f"repaired netconvert's OpenDRIVE: {repair}")
+    if len(repairs) > 5:
+        context.note(f"... and {len(repairs) - 5} more repairs (facts of stage opendrive in manifest.json)")
+    write_opendrive(repaired, xodr)  # a new file renamed over netconvert's (write_opendrive is atomic)
+    return repaired, repairs
+
+
+def _network_extent(context: BuildContext):
+    """The extent of the SUMO network netconvert wrote beside the OpenDRIVE (its <location convBoundary>, in the
+    same local coordinates), when there is one and it is itself a place on Earth."""
+    from tavf_mapkit.errors import InputError
+    from tavf_mapkit.opendrive.plausibility import Extent, off_earth
+    from tavf_mapkit.sumonet import read_location
+
+    net = context.artifacts.get("net")
+    if net is None:
+        return None
+    try:
+        west, south, east, north = read_location(net).conv_boundary
+    except InputError:
+        return None
+    if off_earth([west, east], [south, north]).any() or not (west <= east and south <= north):
+        return None
+    return Extent(west, south, east, north)
+
+
+def repair_facts(repairs) -> dict:
+    """{action: {count, roads}} for the manifest: how often each repair was made, and on which roads (first 20)."""
+    facts: dict = {}
+    for repair in repairs:
+        entry = facts.setdefault(repair.action, {"count": 0, "roads": []})
+        entry["count"] += 1
+        if len(entry["roads"]) < 20:
+            entry["roads"].append(repair.road)
+    return facts
 
 
 def _import_input(context: BuildContext):
