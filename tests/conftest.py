@@ -23,6 +23,20 @@ def shared_path(*parts: str) -> Path:
     return path
 
 
+def peer(getter):
+    """What ``getter()`` returns for an independent oracle of benchmarks/peers (a program, a venv's Python);
+    skips the test with the reason when the peer is not installed here, fails under CI=true (.ci/run installs
+    every peer before the tests)."""
+    from benchmarks.peers import PeerUnavailable
+
+    try:
+        return getter()
+    except PeerUnavailable as error:
+        if os.environ.get("CI", "").lower() == "true":
+            pytest.fail(f"{error} -- in CI, .ci/run installs the peers first")
+        pytest.skip(str(error))
+
+
 @pytest.fixture
 def shared():
     """``shared('xodr', 'esmini', 'e6mini.xodr')`` -> Path, skipping or failing as shared_path does."""

@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-import gzip
-
 import numpy as np
 import pytest
 
+from benchmarks.peers.borders import border_agreement, read_borders
 from tavf_mapkit.opendrive import load_opendrive
 from tavf_mapkit.opendrive.geometry import GeometryKind
-from tavf_mapkit.opendrive.sampling import sample_lane_borders
 from tests.conftest import shared_path
 
 REFERENCE_FILES = ["crest-curve", "curves_elevation", "e6mini", "fabriksgatan", "multi_intersections", "test"]
@@ -39,18 +37,11 @@ def _paramPoly3_length_mismatch(road) -> np.ndarray:
 @pytest.mark.parametrize("name", REFERENCE_FILES)
 def test_lane_borders_agree_with_independent_implementation(name):
     odr = load_opendrive(_xodr(name))
-    with gzip.open(shared_path("reference", "lane_borders", f"{name}.csv.gz"), "rt") as stream:
-        rows = np.genfromtxt(stream, delimiter=",", names=True, dtype=None, encoding=None)
-    ours = sample_lane_borders(odr, 0.5, include_end=False)
-    # the reference prints s with 6 decimals: join on rounded keys; same sample set on both sides
-    road_ids = np.array([road.id for road in odr.roads], dtype=object)
-    keys = {(road_ids[r], round(float(s0), 6), int(lane), round(float(s), 6)): i
-            for i, (r, s0, lane, s) in enumerate(zip(ours.road, ours.section_s0, ours.lane, ours.s))}
-    assert len(ours.s) == len(rows)  # (Town07 has sections 0.4 µm apart, so a few keys coincide)
-    index = np.array([keys[(str(r["road"]), round(float(r["section_s0"]), 6), int(r["lane"]), round(float(r["s"]), 6))]
-                      for r in rows])
-    ours_xyz = np.column_stack([ours.x[index], ours.y[index], ours.z[index]])
-    distance = np.linalg.norm(ours_xyz - np.column_stack([rows["x"], rows["y"], rows["z"]]), axis=1)
+    rows = read_borders(shared_path("reference", "lane_borders", f"{name}.csv.gz"))
+    agreement = border_agreement(odr, rows, 0.5)
+    # same sample set on both sides (Town07 has sections 0.4 µm apart, so a few keys coincide)
+    assert len(agreement.ours.s) == len(rows) and agreement.matched.all()
+    distance = agreement.distance
 
     # Where a paramPoly3's true arc length differs from its @length, the two implementations resolve the
     # file's own inconsistency differently (libOpenDRIVE squeezes it into its last lookup segment, we spread
