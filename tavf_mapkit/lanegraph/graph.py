@@ -146,6 +146,24 @@ class LaneGraph:
             points, s = points[::-1], s[::-1]
         return points, s
 
+    def centerlines(self, keys: Iterable[LaneKey], step: float = 1.0) -> dict[LaneKey, tuple[np.ndarray, np.ndarray]]:
+        """``centerline`` of many lanes in one evaluation of the map (the same points, much faster)."""
+        keys = list(keys)
+        if not keys:
+            return {}
+        values = []
+        for key in keys:
+            road = self.odr.roads[key.road_index]
+            values.append(section_s_values(road.lane_sections[key.section_index].s0,
+                                           road.section_end(key.section_index), step))
+        counts = [len(v) for v in values]
+        rows = np.repeat([self._rows[k] for k in keys], counts)
+        points = np.split(centre_points(self.odr, rows, np.concatenate(values)), np.cumsum(counts)[:-1])
+        found = {}
+        for key, p, s in zip(keys, points, values):
+            found[key] = (p, s) if self._forward[key] else (p[::-1], s[::-1])
+        return found
+
     # ------------------------------------------------------------------ routing
     def shortest_path(self, a: LaneKey, b: LaneKey) -> list[LaneKey]:
         """Lanes from ``a`` to ``b`` (both included) with the least cost, by A* with a Euclidean heuristic."""

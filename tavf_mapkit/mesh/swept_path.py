@@ -36,11 +36,11 @@ def swept_width(curvature: np.ndarray) -> np.ndarray:
     return DESIGN_HALF_WIDTH + widening + MARGIN
 
 
-def wheelbase_curvature(lane: np.ndarray, points: np.ndarray) -> np.ndarray:
+def wheelbase_curvature(lane: np.ndarray, points: np.ndarray, window: float = DESIGN_WHEELBASE) -> np.ndarray:
     """Curvature (1/m, unsigned) at every point of polylines (runs of consecutive points with the same
-    ``lane``): the heading change over one DESIGN_WHEELBASE of arc length centred on the point (cut at the
-    run's ends), over that length. A car smooths a kink over its own length, so a kink counts by its angle
-    over a wheelbase, not as the infinite curvature of a corner."""
+    ``lane``): the heading change over one DESIGN_WHEELBASE (or ``window``) of arc length centred on the
+    point (cut at the run's ends), over that length. A car smooths a kink over its own length, so a kink
+    counts by its angle over a wheelbase, not as the infinite curvature of a corner."""
     n = len(points)
     step = np.hypot(*np.diff(points, axis=0).T) if n > 1 else np.zeros(0)
     # a repeated point has no heading: it takes the curvature of the point before
@@ -66,7 +66,7 @@ def wheelbase_curvature(lane: np.ndarray, points: np.ndarray) -> np.ndarray:
         lo[runs], hi[runs] = middle[first], middle[last]
         start, end = np.full(run[-1] + 1, np.nan), np.full(run[-1] + 1, np.nan)
         start[runs], end[runs] = arc[segment[first]], arc[segment[last] + 1]
-        half = 0.5 * DESIGN_WHEELBASE
+        half = 0.5 * window
         has = np.isfinite(lo[run])
         r = run[has]
         # headings are read between the run's first and last segment middles, so runs never mix

@@ -123,9 +123,14 @@ class LaneLines:
     def __getitem__(self, key: LaneKey) -> LaneLine:
         line = self._cache.get(key)
         if line is None:
-            points, _ = self.graph.centerline(key, self.step)
+            self.preload([key])
+            line = self._cache[key]
+        return line
+
+    def preload(self, keys) -> None:
+        """Build the lines of many lanes at once (one evaluation of the map instead of one per lane)."""
+        missing = [k for k in keys if k not in self._cache]
+        for key, (points, _) in self.graph.centerlines(missing, self.step).items():
             points = without_folds(without_loops(points))
             along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points[:, :2], axis=0), axis=1))])
-            line = LaneLine(key, points, along, self.graph.speed_limit(key))
-            self._cache[key] = line
-        return line
+            self._cache[key] = LaneLine(key, points, along, self.graph.speed_limit(key))

@@ -24,6 +24,14 @@ JOIN_MIN, JOIN_MAX = 2.0, 10.0  # ...within these bounds
 KEEP_BEHIND = 16  # points kept behind the vehicle when shifting
 
 
+def join_cut(gap: float) -> float:
+    """Metres of path before a chunk starting ``gap`` metres from the path's end that the blend replaces
+    with a diagonal (0 where they meet)."""
+    if gap <= JOIN_GAP:
+        return 0.0
+    return 2.0 * float(np.clip(JOIN_PER_GAP * gap, JOIN_MIN, JOIN_MAX))
+
+
 @dataclass(frozen=True, eq=False)
 class Projection:
     index: np.ndarray  # segment index per vehicle
@@ -150,12 +158,11 @@ class PathBuffer:
 
     def _blend(self, i: int, chunk: PathChunk, gap: float) -> PathChunk:
         """Where lane ends do not meet (a lane merging into its neighbour, a kink between roads), drop the last
-        ``2 * join`` metres of the path not yet reached, so the path crosses over to the chunk's start on a
+        ``join_cut(gap)`` metres of the path not yet reached, so the path crosses over to the chunk's start on a
         straight diagonal like a lane change, inside the lanes it leaves, instead of jumping sideways."""
-        join = float(np.clip(JOIN_PER_GAP * gap, JOIN_MIN, JOIN_MAX))
         n = int(self.count[i])
         keep_until = min(int(self.base[i]) + 2, n)
-        cut = int(np.searchsorted(self.s[i, :n], self.s[i, n - 1] - 2.0 * join, side="right"))
+        cut = int(np.searchsorted(self.s[i, :n], self.s[i, n - 1] - join_cut(gap), side="right"))
         self.count[i] = max(cut, keep_until, 1)
         return chunk
 

@@ -1,21 +1,21 @@
 """Random routes that always make progress: a walk through the lane graph that never stalls and never loops.
 
-Lanes: every driving lane except netconvert's turnarounds (U-turns a car cannot drive inside its lane) and
-bends tighter than ``min_radius``, measured the way a car meets them: heading change over one wheelbase of
-arc (``wheelbase_curvature``, the measure the junction curbs leave room for), so a kink of a polyline is not
-a "bend of radius 0.1 m". Lane changes are part of the walk, because on real networks turn lanes often
-make the follow-only graph fall apart.
+Lanes and steps between them: those a car can drive in lane (``twin.planning.drivable``: no U-turns, no
+bend the car would cut by more than a metre, measured on lanes and on the joins between them); sub-metre
+lanes, which add no points to a path, are stepped over. Lane changes are part of the walk, because on real
+networks turn lanes often make the follow-only graph fall apart.
 
 Where the walk goes, in order of preference:
 
 1. ``loop``: the largest strongly connected component of follow and lane-change edges that has a cycle
-   covering distance (a follow edge out of a lane of at least ``DEGENERATE_LANE``). A cycle of lane changes
-   alone never counts: changing lanes does not move a car along the road, and a walk that only changes
+   covering distance (a follow edge; every lane of the walk is at least ``DEGENERATE_LANE`` long). A cycle
+   of lane changes alone never counts: changing lanes does not move a car along the road, and a walk that only changes
    lanes would never get anywhere.
 2. ``turnaround``: where closed loops are missing or cover less than half of what turnarounds open up
    (rural trees, a single two-way street, streets the extract cut off): at a dead end (a lane without a
    follow edge and no lane change towards one) the walk turns around onto the nearest lane of the opposite
-   direction at the same end of the same road. The largest component of that graph is used.
+   direction at the same end of the road: where netconvert's turnaround leads, or a lane of the other side
+   of the same lane section. The largest component of that graph is used.
 3. ``restart``: neither exists (one-way dead ends only): the walk drives until a dead end, then restarts
    on a new random lane.
 
@@ -35,78 +35,29 @@ import numpy as np
 
 from tavf_mapkit.errors import InputError
 from tavf_mapkit.lanegraph import LaneGraph, LaneKey
-from tavf_mapkit.mesh.swept_path import wheelbase_curvature
 from twin.map.lanelines import LaneLines
 from twin.planning.chunks import DEGENERATE_LANE, RESTART, TURNAROUND, LaneCodes, PathChunk, RouteBreak, \
     expand_route
+from twin.planning.drivable import MAX_CUT, lane_transitions, undrivable_lanes
 
-U_TURN = np.radians(135.0)
-MIN_RADIUS = 2.0  # m over a wheelbase: a car (minimum radius 4-6 m) cuts such a bend by more than 1.5 m
 MIN_LANE_CHANGE_LENGTH = 30.0  # m: shorter lanes change lanes only when they must
 TURNAROUND_SHARE = 0.5  # loops must cover this share of what turnarounds reach, else turnarounds are used
 
 
-def undrivable_lanes(graph: LaneGraph, lines: LaneLines, min_radius: float = MIN_RADIUS) -> dict[LaneKey, str]:
-    """Lanes a car cannot drive in lane, with the reason: "u-turn" or "bend of radius R m".
-
-    A U-turn turns the car by more than 135 degrees: inside the lane, or (junction lanes) from the heading
-    of a lane before it to the heading of a lane after it; netconvert draws its turnarounds as a hairpin that
-    starts and ends at an angle to the roads it joins, so the lane alone turns only some 125 degrees.
-    A bend is the heading change over one wheelbase of arc, over that arc (``wheelbase_curvature``).
-    Sub-metre lanes add no points to a path (``DEGENERATE_LANE``) and count as drivable whatever their
-    shape."""
-    measured = [k for k in sorted(graph.keys) if lines[k].length >= DEGENERATE_LANE]
-    if not measured:
-        return {}
-    points = [lines[k].points[:, :2] for k in measured]
-    lane = np.repeat(np.arange(len(measured)), [len(p) for p in points])
-    points = np.concatenate(points)
-    curvature = np.zeros(len(measured))
-    np.maximum.at(curvature, lane, wheelbase_curvature(lane, points))
-    d = np.diff(points, axis=0)
-    heading = np.arctan2(d[:, 1], d[:, 0])
-    inside = (lane[1:-1] == lane[:-2]) & (lane[2:] == lane[1:-1])  # consecutive segments of one lane
-    turn = np.bincount(lane[1:-1][inside], weights=_wrap(np.diff(heading))[inside], minlength=len(measured))
-    last = np.r_[np.flatnonzero(lane[1:] != lane[:-1]), len(lane) - 1]
-    first = np.r_[0, last[:-1] + 1]
-    entry = dict(zip(measured, heading[first]))
-    leave = dict(zip(measured, heading[last - 1]))
-    found = {}
-    for k, bend, own in zip(measured, curvature, turn):
-        u_turn = abs(own) > U_TURN
-        if not u_turn and graph.odr.roads[k.road_index].in_junction:
-            before = [leave[p] for p in graph.predecessors(k) if p in leave]
-            after = [entry[q] for q in graph.successors(k) if q in entry]
-            u_turn = any(abs(_wrap(b - a)) > U_TURN for a in before for b in after)
-        if u_turn:
-            found[k] = "u-turn"
-        elif bend > 1.0 / min_radius:
-            found[k] = f"bend of radius {1.0 / bend:.2f} m"
-    return found
-
-
-def drivable_lanes(graph: LaneGraph, lines: LaneLines, min_radius: float = MIN_RADIUS) -> set[LaneKey]:
-    """The lanes of the graph without those of ``undrivable_lanes``."""
-    return set(graph.keys) - set(undrivable_lanes(graph, lines, min_radius))
-
-
-def _wrap(angle):
-    return (angle + np.pi) % (2 * np.pi) - np.pi
-
-
 class RandomRoutes:
-    def __init__(self, graph: LaneGraph, lines: LaneLines, min_radius: float = MIN_RADIUS,
+    def __init__(self, graph: LaneGraph, lines: LaneLines, max_cut: float = MAX_CUT,
                  lane_change_probability: float = 0.2):
         self.graph = graph
         self.lines = lines
         self.lane_change_probability = lane_change_probability
-        self.undrivable = undrivable_lanes(graph, lines, min_radius)
-        keep = set(graph.keys) - set(self.undrivable)
-        follow: dict[LaneKey, list[LaneKey]] = {k: [] for k in keep}
+        self.undrivable = undrivable_lanes(graph, lines, max_cut=max_cut)
+        self.transitions = lane_transitions(graph, lines, self.undrivable, max_cut=max_cut)
+        follow = self.transitions.follow
+        keep = set(follow)  # drivable lanes of DEGENERATE_LANE or more
         lateral: dict[LaneKey, list[LaneKey]] = {k: [] for k in keep}
         for a, b, kind in graph.graph.edges(data="kind"):
-            if a in keep and b in keep:
-                (follow if kind == "follow" else lateral)[a].append(b)
+            if kind != "follow" and a in keep and b in keep:
+                lateral[a].append(b)
         turnaround = self._turnarounds(keep, follow)
         loop = self._largest_progressing(keep, follow, lateral, {})
         turning = self._largest_progressing(keep, follow, lateral, turnaround)
@@ -118,7 +69,7 @@ class RandomRoutes:
             self.mode, lanes = "restart", frozenset(keep)
         self.lanes = lanes
         self._sorted = sorted(lanes)
-        self._starts = [k for k in self._sorted if lines[k].length >= DEGENERATE_LANE]
+        self._starts = self._sorted
         if not self._starts:
             raise InputError(f"the lane graph has no drivable lane of {DEGENERATE_LANE:g} m or more: "
                              "there is nowhere to drive")
@@ -130,36 +81,20 @@ class RandomRoutes:
     # ------------------------------------------------------------------ construction
     def _turnarounds(self, keep: set[LaneKey], follow: dict) -> dict[LaneKey, list[LaneKey]]:
         """Dead-end lane -> [where a car turns around: the nearest drivable lane of the opposite direction
-        that netconvert's turnaround from the lane's end leads into (the U-turn lane the car cannot drive in
-        lane, perhaps with sub-metre lanes around it), or that enters the same lane section at its end]."""
+        that netconvert's turnaround from the lane's end leads into (a U-turn the car cannot drive in lane),
+        or that enters the same lane section at its end]."""
         graph, lines = self.graph, self.lines
         by_section: dict[tuple[int, int], list[LaneKey]] = {}
         for key in sorted(keep):
             by_section.setdefault((key.road_index, key.section_index), []).append(key)
-
-        def usable(k):
-            return k in keep and lines[k].length >= DEGENERATE_LANE
-
         found = {}
         for key in sorted(keep):
             if follow[key]:
                 continue
-            targets = set()
-            frontier, passed = [(key, False)], set()
-            for _ in range(4):  # a U-turn lane and up to three sub-metre lanes
-                ahead = []
-                for a, turned in frontier:
-                    for b in graph.successors(a):
-                        if usable(b):
-                            if turned:
-                                targets.add(b)
-                        elif (b, turned) not in passed and (self.undrivable.get(b) == "u-turn" or b in keep):
-                            passed.add((b, turned))
-                            ahead.append((b, turned or self.undrivable.get(b) == "u-turn"))
-                frontier = ahead
             forward = graph.drives_with_s(key)
+            targets = set(self.transitions.u_turn[key])
             targets.update(k for k in by_section[(key.road_index, key.section_index)]
-                           if graph.drives_with_s(k) is not forward and usable(k))
+                           if graph.drives_with_s(k) is not forward)
             if targets:
                 end = lines[key].points[-1, :2]
                 found[key] = [min(targets, key=lambda k: (float(np.hypot(*(lines[k].points[0, :2] - end))), k))]
@@ -170,21 +105,22 @@ class RandomRoutes:
 
     def _largest_progressing(self, keep, follow, lateral, turnaround) -> frozenset | None:
         """The longest strongly connected set of lanes (follow, lane-change and the given turnaround edges)
-        with a cycle that covers distance: a follow or turnaround edge out of a lane of at least
-        ``DEGENERATE_LANE`` inside the set. Lane-change-only cycles never qualify."""
+        with a cycle that covers distance: a follow or turnaround edge inside the set (every lane here is at
+        least ``DEGENERATE_LANE`` long). Lane-change-only cycles never qualify."""
         graph = nx.DiGraph()
         graph.add_nodes_from(sorted(keep))
         forward = [(a, b) for a in sorted(keep) for b in follow[a] + turnaround.get(a, [])]
         graph.add_edges_from(forward)
         graph.add_edges_from((a, b) for a in sorted(keep) for b in lateral[a])
+        components = [frozenset(c) for c in nx.strongly_connected_components(graph)]
+        member = {k: i for i, c in enumerate(components) for k in c}
+        progressing = {member[a] for a, b in forward if member[a] == member[b]}
         best, best_rank = None, None
-        for component in nx.strongly_connected_components(graph):
-            if not any(a in component and b in component and self.lines[a].length >= DEGENERATE_LANE
-                       for a, b in forward if a in component):
-                continue
+        for i in sorted(progressing):
+            component = components[i]
             rank = (self._length(component), len(component), min(component))
             if best_rank is None or rank > best_rank:
-                best, best_rank = frozenset(component), rank
+                best, best_rank = component, rank
         return best
 
     def _lane_changes_to_exits(self) -> dict[LaneKey, list[LaneKey]]:

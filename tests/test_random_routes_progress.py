@@ -1,0 +1,208 @@
+"""Random routes always make progress: no lane-change-only loops, bounded-time failure instead of a hang,
+turnarounds and restarts on networks without a closed loop, centre lines without netconvert's folds."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from conftest import _build, shared_path
+
+from tavf_mapkit.errors import InputError
+from tavf_mapkit.lanegraph import LaneGraph, LaneKey
+from tavf_mapkit.opendrive import load_opendrive, loads_opendrive
+from twin.cli.main import cli
+from twin.map.lanelines import LaneLines, without_folds, without_loops
+from twin.planning.buffer import PathBuffer
+from twin.planning.chunks import RESTART, TURNAROUND, LaneCodes, RouteBreak, RouteStalled, expand_route, route_spans
+from twin.planning.drivable import corner_cut, min_turn_radius, undrivable_lanes
+from twin.planning.random_routes import RandomRoutes
+from twin.sim.build import Build
+
+
+def _lane(lane_id, width=3.5, link="", mark="broken"):
+    return (f'<lane id="{lane_id}" type="driving"><link>{link}</link>'
+            f'<width sOffset="0" a="{width}" b="0" c="0" d="0"/><roadMark sOffset="0" type="{mark}"/></lane>')
+
+
+def _straight_road(length, left=(), right=(), road_id="1"):
+    left_xml = f"<left>{''.join(left)}</left>" if left else ""
+    right_xml = f"<right>{''.join(right)}</right>" if right else ""
+    return (f'<road id="{road_id}" length="{length}" junction="-1"><link/>'
+            f'<planView><geometry s="0" x="0" y="0" hdg="0" length="{length}"><line/></geometry></planView>'
+            f'<lanes><laneSection s="0">{left_xml}<center><lane id="0" type="none"/></center>{right_xml}'
+            f'</laneSection></lanes></road>')
+
+
+def _graph(*roads):
+    odr = loads_opendrive('<?xml version="1.0"?><OpenDRIVE><header revMajor="1" revMinor="6"/>'
+                          f'{"".join(roads)}</OpenDRIVE>')
+    graph = LaneGraph.from_opendrive(odr)
+    return graph, LaneLines(graph)
+
+
+def _items(routes, count, seed=0):
+    return list(itertools.islice(routes.walk(np.random.default_rng(seed)), count))
+
+
+def test_a_lane_change_cycle_is_no_loop_and_a_route_stuck_in_one_raises():
+    # one one-way road with two lanes and a broken line between them: the lane graph's only cycle is
+    # -1 -> -2 -> -1, two lane changes; the walk used to alternate between them for ever
+    graph, lines = _graph(_straight_road(100.0, right=[_lane(-1), _lane(-2)]))
+    a, b = LaneKey(0, 0, -1), LaneKey(0, 0, -2)
+    assert graph.graph.edges[a, b]["kind"] != "follow" and graph.graph.edges[b, a]["kind"] != "follow"
+    routes = RandomRoutes(graph, lines)
+    assert routes.mode == "restart"  # no closed loop, no lane of the opposite direction to turn into
+    items = _items(routes, 200)
+    assert items[1::2] == [RESTART] * 100 and set(items[::2]) == {a, b}  # one lane, then a new route
+    chunks = list(itertools.islice(routes.chunks(LaneCodes(graph), np.random.default_rng(0)), 50))
+    assert all(len(c) == 101 for c in chunks)  # every part drives the whole road
+    assert [c.begins for c in chunks] == [None] + ["restart"] * 49
+    # a route that only changes lanes fails at once instead of splitting one section for ever
+    with pytest.raises(RouteStalled, match="changes lanes in a circle on road 1"):
+        list(route_spans(lines, graph, itertools.islice(itertools.cycle([a, b]), 10_000)))
+
+
+def test_a_route_over_lanes_without_length_raises():
+    graph, lines = _graph(_straight_road(0.5, right=[_lane(-1)]), _straight_road(50.0, right=[_lane(-1)], road_id="2"))
+    tiny = LaneKey(0, 0, -1)
+    with pytest.raises(RouteStalled, match="without covering a metre"):
+        list(expand_route(lines, LaneCodes(graph), itertools.islice(itertools.repeat(tiny), 5000)))
+
+
+def test_a_network_of_sub_metre_lanes_is_refused_in_one_line():
+    graph, lines = _graph(_straight_road(0.5, right=[_lane(-1)]))
+    with pytest.raises(InputError, match="no drivable lane of 1 m or more"):
+        RandomRoutes(graph, lines)
+
+
+def test_a_single_two_way_street_turns_around_at_both_ends():
+    graph, lines = _graph(_straight_road(200.0, left=[_lane(1)], right=[_lane(-1)]))
+    east, west = LaneKey(0, 0, -1), LaneKey(0, 0, 1)
+    routes = RandomRoutes(graph, lines)
+    assert routes.mode == "turnaround" and routes.lanes == {east, west}
+    items = _items(routes, 9, seed=3)
+    lanes = [i for i in items if isinstance(i, LaneKey)]
+    assert all(isinstance(i, RouteBreak) for i in items[1::2]) and set(items[1::2]) == {TURNAROUND}
+    assert all(p != q for p, q in itertools.pairwise(lanes))  # east, west, east, ...
+    # the path buffer stops the car at the street's end and holds the opposite lane until the turnaround
+    buffer = PathBuffer(1, horizon=300.0)
+    buffer.assign(0, routes.chunks(LaneCodes(graph), np.random.default_rng(3), start=east))
+    n = int(buffer.count[0])
+    assert buffer.waiting[0] and buffer.x[0, n - 1] == pytest.approx(200.0) and buffer.vmax[0, n - 1] == 0.0
+    assert buffer.remaining(0) == pytest.approx(200.0)  # nothing of the way back is part of this path
+    assert not buffer.at_break(np.array([150.0]), 2.0)[0] and buffer.at_break(np.array([198.5]), 2.0)[0]
+    assert buffer.jump(0) == "turnaround"
+    assert (buffer.x[0, 0], buffer.y[0, 0]) == pytest.approx((200.0, 1.75))  # the westbound lane's start
+    assert buffer.x[0, 1] < buffer.x[0, 0] and buffer.waiting[0]
+
+
+def test_a_one_way_dead_end_restarts():
+    graph, lines = _graph(_straight_road(80.0, right=[_lane(-1)]), _straight_road(60.0, right=[_lane(-1)], road_id="2"))
+    routes = RandomRoutes(graph, lines)
+    assert routes.mode == "restart"
+    items = _items(routes, 400, seed=1)
+    assert set(items[1::2]) == {RESTART} and set(items[::2]) == {LaneKey(0, 0, -1), LaneKey(1, 0, -1)}
+
+
+def test_closed_loops_are_preferred_and_never_need_a_break(sample_build_dir):
+    graph = LaneGraph.from_opendrive(load_opendrive(Build.open(sample_build_dir).xodr))
+    routes = RandomRoutes(graph, LaneLines(graph))
+    assert routes.mode == "loop"
+    assert not any(isinstance(i, RouteBreak) for i in _items(routes, 3000))
+    # the sample's dead ends have netconvert turnarounds: U-turn lanes, which a car does not drive in lane
+    assert "u-turn" in routes.undrivable.values()
+
+
+def test_folds_of_an_offset_centre_line_are_cut_out():
+    # a straight line with a swallowtail: forward to x=10, a loop back to x=8, on again
+    loop = np.array([[0, 0, 0], [5, 0, 0], [10, 0, 0], [10.5, 0.5, 0], [9.5, 1.0, 0], [8.0, 0.3, 0], [9, -0.2, 0],
+                     [12, -0.2, 0], [20, -0.2, 0]], dtype=float)
+    cut = without_loops(loop)
+    assert len(cut) < len(loop) and np.all(np.diff(cut[:, 0]) > 0)  # only forward steps are left
+    # a zig-zag that doubles back without crossing (the fold of a lane cut by the lane's end)
+    folded = np.array([[0, 0, 0], [-0.5, 0.1, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0], [10, 0, 0]], dtype=float)
+    assert np.all(np.diff(without_folds(folded)[:, 0]) > 0) and without_folds(folded)[-1, 0] == 10.0
+    # a real bend (a quarter circle of 10 m radius) is left alone
+    angle = np.linspace(0, math.pi / 2, 20)
+    arc = np.column_stack([10 * np.sin(angle), 10 - 10 * np.cos(angle), np.zeros(20)])
+    assert np.array_equal(without_folds(without_loops(arc)), arc)
+
+
+@pytest.fixture(scope="module")
+def berlin_build(tmp_path_factory):
+    return _build(tmp_path_factory, "berlin", shared_path("osm_small", "berlin-siegessaeule.osm.gz"))
+
+
+@pytest.fixture(scope="module")
+def krautsand_build(tmp_path_factory):
+    return _build(tmp_path_factory, "krautsand", shared_path("osm_small", "krautsand.osm.gz"))
+
+
+def test_junction_lanes_of_berlin_stay_drivable(berlin_build):
+    """On the Grosser Stern build the old per-vertex bend test dropped 25 lanes with "radii" of 0.2-7.5 m
+    (mostly folds of outer lanes on tight reference lines), and the largest part left was three lanes
+    joined only by lane changes. On centre lines without folds no lane and no step between lanes makes the
+    car cut a bend by a metre, and the walk has the whole roundabout."""
+    graph = LaneGraph.from_opendrive(load_opendrive(Build.open(berlin_build).xodr))
+    lines = LaneLines(graph)
+    routes = RandomRoutes(graph, lines)
+    assert routes.undrivable == {} and routes.transitions.dropped == {}
+    assert routes.mode == "loop" and len(routes.lanes) >= 70
+
+
+def test_bends_are_measured_by_how_far_the_car_cuts_them():
+    radius = min_turn_radius()
+    assert radius == pytest.approx(2.96 / math.tan(math.radians(35.0) * 0.8))  # 5.6 m at the steering limit
+    lane = np.zeros(41, dtype=np.int64)
+    straight = np.column_stack([np.linspace(-20, 20, 41), np.zeros(41)])
+    assert corner_cut(lane, straight, radius).max() == 0.0
+
+    def corner(angle):  # two straight legs of 20 m meeting at a kink that turns by ``angle``
+        legs = np.linspace(0.0, 20.0, 21)
+        after = np.column_stack([legs * math.cos(angle), legs * math.sin(angle)])[1:]
+        return np.concatenate([np.column_stack([legs - 20.0, np.zeros(21)]), after])
+
+    def arc(r, angle):
+        t = np.linspace(0.0, angle, max(int(r * angle), 2) + 1)
+        return np.column_stack([r * np.sin(t), r - r * np.cos(t)])
+
+    kink = corner(math.radians(20)).shape[0]
+    small = corner_cut(np.zeros(kink, dtype=np.int64), corner(math.radians(20)), radius).max()
+    right = corner_cut(np.zeros(kink, dtype=np.int64), corner(math.radians(90)), radius).max()
+    exact = radius * (1 / math.cos(math.radians(45)) - 1)  # 2.3 m: the car's arc inside a right angle
+    assert small < 0.2 and 0.7 * exact < right <= exact
+    wide = arc(8.0, math.pi / 2)  # a junction turn of 8 m radius: the car follows it
+    assert corner_cut(np.zeros(len(wide), dtype=np.int64), wide, radius).max() == 0.0
+
+
+def test_bulk_centre_lines_are_the_one_by_one_centre_lines(sample_build_dir):
+    graph = LaneGraph.from_opendrive(load_opendrive(Build.open(sample_build_dir).xodr))
+    keys = sorted(graph.keys)
+    bulk = graph.centerlines(keys)
+    for key in keys:
+        points, s = graph.centerline(key)
+        # the same samples; paramPoly3 arc-length inversion converges per batch, so within a micrometre
+        assert np.array_equal(bulk[key][1], s) and np.allclose(bulk[key][0], points, rtol=0, atol=1e-6)
+
+
+@pytest.mark.slow
+def test_krautsand_drives_ten_minutes_turning_around_at_its_dead_ends(krautsand_build, tmp_path):
+    """The rural Krautsand extract has no closed loop once netconvert's turnarounds are left out: the twin
+    used to refuse it. Now it drives, turns around at the dead ends, and ends by itself, reproducibly."""
+    runs = []
+    for name in ("a", "b"):
+        result = CliRunner().invoke(cli, ["drive", "--map", str(krautsand_build), "--random", "--duration", "600",
+                                          "--seed", "0", "--out", str(tmp_path / name), "--no-record", "--no-plot",
+                                          "--format", "json"])
+        assert result.exit_code == 0, result.output
+        runs.append(json.loads(result.output))
+    metrics = runs[0]
+    assert metrics["route_mode"] == "turnaround" and metrics["turnarounds"] >= 1 and metrics["restarts"] == 0
+    assert metrics["resets"] == 0 and metrics["collisions"] == 0 and metrics["off_road_seconds"] == 0.0
+    assert metrics["distance_m"] > 5000 and metrics["sim_seconds"] == 600.0
+    assert (tmp_path / "a" / "trajectory.csv").read_bytes() == (tmp_path / "b" / "trajectory.csv").read_bytes()

@@ -1,0 +1,187 @@
+"""Which lanes, and which steps from one lane to the next, a car can drive in lane, measured as a car meets them.
+
+Two things a car cannot follow:
+
+- a U-turn: the car's heading turns by more than 135 degrees, inside a lane or from the lane before to
+  the lane after. netconvert draws its turnarounds as a hairpin that starts and ends at an angle to the
+  roads it joins (the lane alone turns some 125 degrees), sometimes as a lane of a few centimetres.
+- a bend tighter than the car turns. A car turns no tighter than ``min_turn_radius`` R (wheelbase over the
+  tangent of its largest steering angle: 5.6 m for the Model S at the controllers' steering limit). On a
+  bend of angle D and radius r < R it cuts inside by (R - r) (1 / cos(D / 2) - 1), the distance between
+  the bend's and the car's arcs at the apex. ``corner_cut`` measures this at every point of a centre line
+  over windows of 1 to 16 m of arc (D: the heading change over the window, r: the window over D, as in
+  ``wheelbase_curvature``): a polyline kink of 20 degrees costs 9 cm whatever its "radius", a right-angled
+  corner 2 m, a junction turn of 5 m radius nothing. Lanes and steps that cut more than ``MAX_CUT`` are
+  not driven.
+
+A step from lane a to lane b (a "transition") may pass sub-metre lanes, which add no points to a path
+(``DEGENERATE_LANE``), and a gap the path buffer bridges with a diagonal (``join_cut``); it is measured on
+the polyline the path will have: the end of a without what the diagonal replaces, then the start of b.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from tavf_mapkit.lanegraph import LaneGraph, LaneKey
+from tavf_mapkit.mesh.swept_path import wheelbase_curvature
+from twin.control.pid import CARLA_LIMITS, ActuatorLimits
+from twin.map.lanelines import LaneLines
+from twin.planning.buffer import JOIN_GAP, join_cut
+from twin.planning.chunks import DEGENERATE_LANE
+from twin.vehicle.params import MODEL_S, VehicleParams
+
+U_TURN = np.radians(135.0)
+MAX_CUT = 1.0  # m a car at full lock may cut a bend: it stays inside its lane's clearance, far from "lost" (4 m)
+WINDOWS = (1.0, 2.0, 4.0, 8.0, 16.0)  # m of arc over which bends are measured
+REACH = 8.0  # m of each lane around a transition that the measure looks at
+CHAIN = 4  # sub-metre lanes (and one U-turn lane) a transition may pass
+
+
+def min_turn_radius(params: VehicleParams = MODEL_S, limits: ActuatorLimits = CARLA_LIMITS) -> float:
+    """The tightest radius (m, rear axle) the twin's car turns at the controllers' steering limit."""
+    return params.wheelbase / math.tan(params.max_steer * limits.max_steering)
+
+
+def corner_cut(lane: np.ndarray, points: np.ndarray, radius: float) -> np.ndarray:
+    """Per point of polylines (runs of equal ``lane``): how far (m) a car turning no tighter than ``radius``
+    cuts inside the bend there, the largest over ``WINDOWS`` (near a run's ends the window is cut short)."""
+    step = np.r_[np.inf, np.hypot(*np.diff(points, axis=0).T)]
+    # points closer than a path buffer's join tolerance (lane ends that nearly meet) give a step whose heading
+    # is noise, not a turn: they take their predecessor's value
+    distinct = (step > JOIN_GAP) | np.r_[True, lane[1:] != lane[:-1]]
+    if not np.all(distinct):
+        return corner_cut(lane[distinct], points[distinct], radius)[np.cumsum(distinct) - 1]
+    step[0] = 0.0
+    first = np.r_[True, lane[1:] != lane[:-1]]
+    step[first] = 0.0
+    total = np.cumsum(step)
+    arc = total - np.maximum.accumulate(np.where(first, total, 0.0))  # metres from the run's start
+    run = np.cumsum(first) - 1
+    length = np.zeros(run[-1] + 1 if len(run) else 0)
+    np.maximum.at(length, run, arc)
+    cut = np.zeros(len(points))
+    for window in WINDOWS:
+        curvature = wheelbase_curvature(lane, points, window)
+        span = np.minimum(arc + 0.5 * window, length[run]) - np.maximum(arc - 0.5 * window, 0.0)
+        turn = np.minimum(curvature * span, 0.9 * np.pi)  # the heading change over the window
+        own_radius = 1.0 / np.maximum(curvature, 1e-9)
+        cut = np.maximum(cut, np.maximum(radius - own_radius, 0.0) * (1.0 / np.cos(0.5 * turn) - 1.0))
+    return cut
+
+
+def _wrap(angle):
+    return (angle + np.pi) % (2 * np.pi) - np.pi
+
+
+def _headings(lines: LaneLines, key: LaneKey) -> tuple[float, float]:
+    """Driving heading of the lane's first and last segment."""
+    d = np.diff(lines[key].points[:, :2], axis=0)
+    heading = np.arctan2(d[:, 1], d[:, 0])
+    return float(heading[0]), float(heading[-1])
+
+
+def undrivable_lanes(graph: LaneGraph, lines: LaneLines, radius: float | None = None,
+                     max_cut: float = MAX_CUT) -> dict[LaneKey, str]:
+    """Lanes of at least ``DEGENERATE_LANE`` a car cannot drive in lane, with the reason ("u-turn" or
+    "cuts a bend by X m")."""
+    radius = min_turn_radius() if radius is None else radius
+    lines.preload(sorted(graph.keys))
+    measured = [k for k in sorted(graph.keys) if lines[k].length >= DEGENERATE_LANE and len(lines[k].points) >= 2]
+    if not measured:
+        return {}
+    points = [lines[k].points[:, :2] for k in measured]
+    lane = np.repeat(np.arange(len(measured)), [len(p) for p in points])
+    points = np.concatenate(points)
+    cut = np.zeros(len(measured))
+    np.maximum.at(cut, lane, corner_cut(lane, points, radius))
+    d = np.diff(points, axis=0)
+    inside = (lane[1:-1] == lane[:-2]) & (lane[2:] == lane[1:-1])  # consecutive segments of one lane
+    turn = np.bincount(lane[1:-1][inside], weights=_wrap(np.diff(np.arctan2(d[:, 1], d[:, 0])))[inside],
+                       minlength=len(measured))
+    heading = {k: _headings(lines, k) for k in measured}
+    found = {}
+    for k, worst, own in zip(measured, cut, turn):
+        u_turn = abs(own) > U_TURN
+        if not u_turn and graph.odr.roads[k.road_index].in_junction:
+            before = [heading[p][1] for p in graph.predecessors(k) if p in heading]
+            after = [heading[q][0] for q in graph.successors(k) if q in heading]
+            u_turn = any(abs(_wrap(b - a)) > U_TURN for a in before for b in after)
+        if u_turn:
+            found[k] = "u-turn"
+        elif worst > max_cut:
+            found[k] = f"cuts a bend by {worst:.1f} m"
+    return found
+
+
+@dataclass
+class Transitions:
+    """Steps between drivable lanes of at least ``DEGENERATE_LANE``: ``follow`` a car drives; ``u_turn``
+    only by turning around (through a U-turn lane or a U-turn step); ``dropped`` with their reason."""
+
+    follow: dict[LaneKey, list[LaneKey]] = field(default_factory=dict)
+    u_turn: dict[LaneKey, list[LaneKey]] = field(default_factory=dict)
+    dropped: dict[tuple[LaneKey, LaneKey], str] = field(default_factory=dict)
+
+
+def lane_transitions(graph: LaneGraph, lines: LaneLines, undrivable: dict[LaneKey, str],
+                     radius: float | None = None, max_cut: float = MAX_CUT) -> Transitions:
+    radius = min_turn_radius() if radius is None else radius
+
+    def usable(k):
+        return k not in undrivable and lines[k].length >= DEGENERATE_LANE
+
+    result = Transitions()
+    candidates: list[tuple[LaneKey, LaneKey]] = []
+    for a in sorted(k for k in graph.keys if usable(k)):
+        result.follow[a], result.u_turn[a] = [], []
+        frontier, seen, turned_to = [(a, False)], set(), set()
+        for _ in range(CHAIN + 1):
+            ahead = []
+            for x, turned in frontier:
+                for b in graph.successors(x):
+                    if usable(b):
+                        if turned:
+                            turned_to.add(b)
+                        else:
+                            candidates.append((a, b))
+                    elif (b, turned) not in seen:
+                        u_turn_lane = undrivable.get(b) == "u-turn"
+                        if u_turn_lane or (b not in undrivable and lines[b].length < DEGENERATE_LANE):
+                            seen.add((b, turned))
+                            ahead.append((b, turned or u_turn_lane))
+            frontier = ahead
+        result.u_turn[a] = sorted(turned_to)
+    candidates = sorted(set(candidates))
+    if not candidates:
+        return result
+    # the polyline of every step, all measured at once
+    polylines = [_step_polyline(lines, a, b) for a, b in candidates]
+    lane = np.repeat(np.arange(len(candidates)), [len(p) for p in polylines])
+    cut = np.zeros(len(candidates))
+    np.maximum.at(cut, lane, corner_cut(lane, np.concatenate(polylines), radius))
+    for (a, b), worst in zip(candidates, cut):
+        if abs(_wrap(_headings(lines, b)[0] - _headings(lines, a)[1])) > U_TURN:
+            result.dropped[a, b] = "u-turn"
+            result.u_turn[a].append(b)
+        elif worst > max_cut:
+            result.dropped[a, b] = f"cuts a bend by {worst:.1f} m"
+        else:
+            result.follow[a].append(b)
+    for a in result.u_turn:
+        result.u_turn[a] = sorted(set(result.u_turn[a]))
+    return result
+
+
+def _step_polyline(lines: LaneLines, a: LaneKey, b: LaneKey) -> np.ndarray:
+    """The end of lane a and the start of lane b as the path buffer joins them (plan view)."""
+    la, lb = lines[a], lines[b]
+    cut = join_cut(float(np.hypot(*(lb.points[0, :2] - la.points[-1, :2]))))
+    end = la.length - cut
+    tail = la.points[(la.along >= end - REACH) & (la.along <= end), :2]
+    if not len(tail):
+        tail = la.points[:1, :2]
+    return np.concatenate([tail, lb.points[lb.along <= REACH, :2]])
