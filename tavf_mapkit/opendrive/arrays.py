@@ -53,10 +53,19 @@ class RecordTable:
             nxt[last] = group_end[group[last]]
         return nxt - s0
 
-    def evaluate(self, group: np.ndarray, s: np.ndarray, derivative: bool = False) -> np.ndarray:
+    def evaluate(self, group: np.ndarray, s: np.ndarray, derivative: bool = False,
+                 from_left: np.ndarray | None = None) -> np.ndarray:
+        """Values at (group, s). Where ``from_left`` is True, a record that starts exactly at s is not yet in
+        force (the limit from the left: the value at the end of the interval before s)."""
         if not len(self.s0):
             return np.zeros(len(s))
-        index = np.searchsorted(self.keys, group + s / self.span, side="right") - 1
+        key = group + s / self.span
+        index = np.searchsorted(self.keys, key, side="right") - 1
+        if from_left is not None:
+            before = np.searchsorted(self.keys, key, side="left") - 1
+            # only inside the group: at the group's first record there is nothing to its left
+            same = (before >= 0) & (self.group[np.maximum(before, 0)] == group)
+            index = np.where(np.asarray(from_left, dtype=bool) & same, before, index)
         if self.extend_first:
             # before a group's first record: use that first record
             first = np.searchsorted(self.group, group, side="left")
@@ -151,6 +160,15 @@ class NetworkArrays:
             lane_height_outer=RecordTable.build(heights_outer, span),
         )
         return replace(arrays, budget=SampleBudget.build(odr, arrays))
+
+    def section_lane_offset(self, section: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """laneOffset as the lane sections see it: at a section's own end, the record in force inside the
+        section, not one that starts there (CARLA's maps step laneOffset exactly at section boundaries, by as
+        much as the lanes that appear beside it are wide, so the lanes themselves do not move)."""
+        section = np.asarray(section, dtype=np.int64)
+        s = np.asarray(s, dtype=float)
+        at_end = s >= self.section_end[section] - 1e-9
+        return self.lane_offset.evaluate(self.section_road[section], s, from_left=at_end)
 
     def reference(self, road: np.ndarray, s: np.ndarray):
         """(x, y, z, heading, slope, superelevation, lane_offset) for arrays of (road index, s)."""

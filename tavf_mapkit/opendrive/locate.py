@@ -28,8 +28,7 @@ def border_offsets(arrays, lane_row: np.ndarray, s: np.ndarray) -> tuple[np.ndar
     """(t_inner, t_outer) of lane-table rows at s, walking out from the centre lane."""
     lane_row = np.asarray(lane_row)
     rank = arrays.lane_rank[lane_row]
-    road = arrays.section_road[arrays.lane_section[lane_row]]
-    t = arrays.lane_offset.evaluate(road, s)
+    t = arrays.section_lane_offset(arrays.lane_section[lane_row], s)
     t_inner = t.copy()
     sign = np.sign(arrays.lane_id[lane_row]).astype(float)
     for r in range(int(rank.max(initial=-1)) + 1):

@@ -93,7 +93,11 @@ class Road:
     def lane_borders(self, section_index: int, s) -> dict[int, np.ndarray]:
         """t of the outer border of every lane of a section at each s (lane 0: the lane offset)."""
         s = np.atleast_1d(np.asarray(s, dtype=float))
-        return self.lane_sections[section_index].outer_borders(s, self.lane_offset(s))
+        # at the section's own end, a laneOffset record starting there is not yet in force (see
+        # NetworkArrays.section_lane_offset): evaluate a hair before it
+        at_end = s >= self.section_end(section_index) - 1e-9
+        offset = self.lane_offset(np.where(at_end, np.nextafter(s, -np.inf), s))
+        return self.lane_sections[section_index].outer_borders(s, offset)
 
     def lane_border_points(self, section_index: int, lane_id: int, s) -> np.ndarray:
         """(n, 3) points of a lane's outer border."""

@@ -137,7 +137,8 @@ def sample_lanes_at(odr, sample_section: np.ndarray, sample_s: np.ndarray) -> La
     sample_section = np.asarray(sample_section, dtype=np.int64)
     sample_s = np.asarray(sample_s, dtype=float)
     road = arrays.section_road[sample_section]
-    x, y, z, heading, slope, superelevation, lane_offset = arrays.reference(road, sample_s)
+    x, y, z, heading, slope, superelevation, _ = arrays.reference(road, sample_s)
+    lane_offset = arrays.section_lane_offset(sample_section, sample_s)
 
     n_sections = len(arrays.section_s0)
     counts = np.bincount(sample_section, minlength=n_sections)
