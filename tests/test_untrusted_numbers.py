@@ -232,24 +232,30 @@ def test_roads_beyond_repair_are_dropped_with_their_links():
     assert repaired.road_by_id["1"].successor is None and repaired.junctions[0].connections == ()
 
 
-def test_opendrive_stage_repairs_netconvert_output_and_counts_it(tmp_path):
-    """The stage as a build runs it, on a netconvert-like file beside a SUMO network's extent."""
+def _run_opendrive_stage(folder: Path, date: str):
+    """The stage as a build runs it, on a netconvert-like file (stamped with ``date``) beside a SUMO network."""
     from tavf_mapkit.pipeline.config import PipelineConfig
     from tavf_mapkit.pipeline.context import BuildContext
     from tavf_mapkit.pipeline.stages import get_stage
 
-    folder = tmp_path / "build"
     folder.mkdir()
     xodr = folder / "net.xodr"
-    xodr.write_text(document(ROAD_1, ROAD_2, NETCONVERT_ROAD))
+    xodr.write_text(document(ROAD_1, ROAD_2, NETCONVERT_ROAD).replace("<header ", f'<header date="{date}" '))
     net = folder / "net.net.xml"
     net.write_text('<net><location netOffset="0.00,0.00" convBoundary="0.00,0.00,200.00,50.00" '
                    'origBoundary="0,0,1,1" projParameter="!"/></net>')
-    context = BuildContext(name="net", folder=folder, input_path=tmp_path / "in.osm", input_kind="osm",
+    context = BuildContext(name="net", folder=folder, input_path=folder / "in.osm", input_kind="osm",
                            config=PipelineConfig(), artifacts={"xodr": xodr, "net": net})
-    output = get_stage("opendrive").run(context)
+    return xodr, get_stage("opendrive").run(context)
+
+
+def test_opendrive_stage_repairs_netconvert_output_and_counts_it(tmp_path):
+    xodr, output = _run_opendrive_stage(tmp_path / "build", "Mon Nov 23 18:28:43 2026")
     assert output.facts["repairs"] == {"dropped vertices": {"count": 1, "roads": ["7"]}}
     assert output.files["xodr"] == "net.xodr" and output.facts["roads"] == 3
+    # the repaired file depends on the input only (not on netconvert's time stamp): later stages are reused
+    again, _ = _run_opendrive_stage(tmp_path / "rebuild", "Mon Nov 23 19:04:10 2026")
+    assert again.read_bytes() == xodr.read_bytes()
     rewritten = load_opendrive(xodr)
     assert rewritten.road_by_id["7"].length == pytest.approx(12.5, abs=1e-6)
     assert SENTINEL.split(".")[0] not in xodr.read_text()

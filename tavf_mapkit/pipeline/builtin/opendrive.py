@@ -14,6 +14,7 @@ refuses the build with one line naming the file's road and line (the sampling bu
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 from tavf_mapkit.pipeline.context import BuildContext
 from tavf_mapkit.pipeline.stages import Stage, StageOutput, register_stage
@@ -86,6 +87,10 @@ def _repaired_netconvert_output(context: BuildContext):
         context.note(f"repaired netconvert's OpenDRIVE: {repair}")
     if len(repairs) > 5:
         context.note(f"... and {len(repairs) - 5} more repairs (facts of stage opendrive in manifest.json)")
+    # netconvert stamps its output with the time (header @date): without the stamp the repaired file depends on
+    # the input only, so a rebuild -- which reruns netconvert, whose file this no longer is -- reuses the stages
+    # after this one
+    repaired = repaired.with_header(replace(repaired.header, date=None))
     write_opendrive(repaired, xodr)  # a new file renamed over netconvert's (write_opendrive is atomic)
     return repaired, repairs
 
