@@ -14,9 +14,10 @@ DEFAULT_TILE = 100.0
 class CollisionStage(Stage):
     inputs = ("xodr",)
     optional_inputs = ("source", "mesh")
-    version = "6"  # 2: reuses the mesh stage's surface at the same eps; 3: curbs around junctions (reverted in 4);
+    version = "7"  # 2: reuses the mesh stage's surface at the same eps; 3: curbs around junctions (reverted in 4);
     # 5: junction curbs along the connecting lanes' sides, clear of the swept path of a car on each driving lane;
-    # 6: reuses the mesh stage's scene solids when they were made at the same eps from the same input
+    # 6: reuses the mesh stage's scene solids when they were made at the same eps from the same input;
+    # 7: a laneOffset step at a section boundary no longer bends the section's end
     description = "pybullet collision world: road surface, curbs, objects, signals, buildings (tiled OBJ)"
 
     def options(self, context: BuildContext) -> dict:

@@ -15,9 +15,9 @@ from tavf_mapkit.pipeline.stages import Stage, StageOutput, register_stage
 class MeshStage(Stage):
     inputs = ("xodr",)
     optional_inputs = ("source",)
-    version = "6"  # 2: also writes mesh/surface.npz; 3: curbs around junctions (reverted in 4); 5: junction curbs
+    version = "7"  # 2: also writes mesh/surface.npz; 3: curbs around junctions (reverted in 4); 5: junction curbs
     # along the connecting lanes' sides, clear of the swept path of a car following each driving lane;
-    # 6: also writes mesh/solids.npz
+    # 6: also writes mesh/solids.npz; 7: a laneOffset step at a section boundary no longer bends the section's end
     description = "road surface, junctions and road marks (and scene solids) as tiled glTF + preview"
 
     def options(self, context: BuildContext) -> dict:
