@@ -76,3 +76,19 @@ def test_opendrive_rule_decides_by_road_length(tmp_path):
     assert found.side == "left" and found.source == "opendrive" and "1 of 2 roads" in found.reason
     path.write_text(document(short_rht), encoding="utf-8")
     assert opendrive_side(load_opendrive(path)).side == "right"
+
+
+def test_pipeline_key_and_command_line_override(tmp_path):
+    from tavf_mapkit.pipeline.config import load_pipeline
+
+    path = tmp_path / "london.toml"
+    path.write_text('[pipeline]\nname = "london"\ndriving_side = "left"\n', encoding="utf-8")
+    config = load_pipeline(path)
+    assert config.driving_side == "left" and config.to_dict()["driving_side"] == "left"
+    assert config.with_overrides(driving_side="right").driving_side == "right"
+    assert config.with_overrides().driving_side == "left"
+    path.write_text('[pipeline]\ndriving_side = "both"\n', encoding="utf-8")
+    with pytest.raises(InputError) as error:
+        load_pipeline(path)
+    assert str(error.value) == (f"{path.resolve()}: [pipeline] driving_side must be one of auto, left, right, "
+                                "not 'both'")
