@@ -261,3 +261,21 @@ def test_opendrive_stage_repairs_netconvert_output_and_counts_it(tmp_path):
     assert SENTINEL.split(".")[0] not in xodr.read_text()
     result = CliRunner().invoke(cli, ["info", "--json", str(xodr)])
     assert result.exit_code == 0 and json.loads(result.output)["total_length_m"] == pytest.approx(212.5, abs=1e-6)
+
+
+def test_reference_network_with_absurd_shapes_is_refused_in_one_line(tmp_path, sample_build_dir):
+    """`mapkit compare` resamples the reference network's lane shapes: they are checked like a map's geometry."""
+    import re
+
+    xodr, net = sample_build_dir / "sample.xodr", (sample_build_dir / "sample.net.xml").read_text()
+    lane = re.search(r'<lane id="([^"]+)"[^>]* shape="([^" ]+) ', net)
+    cases = {"1e12,0": "@shape vertex x=1e+12, y=0 is not a place on Earth (|x| or |y| above 1e+08 m)",
+             "a,b": "@shape is not a list of x,y numbers"}
+    for vertex, message in cases.items():
+        hostile = tmp_path / "hostile.net.xml"
+        text = net[:lane.start(2)] + vertex + net[lane.end(2):]
+        hostile.write_text(text)
+        result = CliRunner().invoke(cli, ["compare", str(xodr), str(hostile)])
+        assert result.exit_code == 2 and "Traceback" not in result.output
+        line = text[:lane.start()].count("\n") + 1
+        assert result.output.strip() == f"Error: {hostile}:{line}: <lane>: lane {lane.group(1)}: {message}"

@@ -16,6 +16,8 @@ import pyproj
 
 from tavf_mapkit.accuracy.polylines import LineSamples, line_headings, resample_polylines, sample_weights
 from tavf_mapkit.errors import InputError
+from tavf_mapkit.opendrive.budget import MAX_POINTS
+from tavf_mapkit.opendrive.plausibility import off_earth, vertex_problem
 
 _WGS84 = pyproj.CRS.from_epsg(4326)
 LANE_TYPE_GROUPS = {"walking": "sidewalk", "bidirectional": "driving", "entry": "driving", "exit": "driving",
@@ -156,6 +158,21 @@ def _shape(text: str | None) -> np.ndarray:
     return np.array(points, dtype=float).reshape(-1, 2)
 
 
+def _checked_shape(lane, file: str) -> np.ndarray:
+    """A lane's @shape as (n, 2) points; a shape that is not numbers, or not on Earth, is one line of error."""
+    try:
+        shape = _shape(lane.get("shape"))
+    except ValueError:
+        raise InputError(f"lane {lane.get('id')}: @shape is not a list of x,y numbers", file=file,
+                         line=lane.sourceline, element="lane") from None
+    bad = np.flatnonzero(off_earth(shape[:, 0], shape[:, 1]))
+    if len(bad):
+        x, y = shape[bad[0]]
+        raise InputError(f"lane {lane.get('id')}: @shape vertex {vertex_problem(x, y) or f'x={x}, y={y}'}",
+                         file=file, line=lane.sourceline, element="lane")
+    return shape
+
+
 def load_sumo_network(path: str, frame, step: float = 0.5) -> Network:
     """Lane shapes of a SUMO network (.net.xml[.gz]); net coordinates = projected + netOffset."""
     import networkx as nx
@@ -185,7 +202,7 @@ def load_sumo_network(path: str, frame, step: float = 0.5) -> Network:
             location = element.attrib
         elif tag == "lane" and edge_function in ("normal", "internal"):
             lane_type = _sumo_lane_type(element.get("allow"), element.get("disallow"))
-            shape = _shape(element.get("shape"))
+            shape = _checked_shape(element, name)
             if lane_type is not None and len(shape) >= 2:
                 shapes.append(shape)
                 types.append(lane_type)
@@ -219,6 +236,12 @@ def load_sumo_network(path: str, frame, step: float = 0.5) -> Network:
 
     counts = np.array([len(s) for s in shapes])
     vertex_line = np.repeat(np.arange(len(shapes)), counts)
+    lane_points = np.array([np.linalg.norm(np.diff(s, axis=0), axis=1).sum() for s in shapes]) / step + 2
+    if not lane_points.sum() <= MAX_POINTS:  # before allocating, as every sampler (opendrive/budget.py)
+        worst = int(np.argmax(lane_points))
+        raise InputError(f"sampling its lanes every {step:g} m would allocate {lane_points.sum():.3g} points, more "
+                         f"than the budget of {MAX_POINTS:.3g} (lane {lane_ids[worst]} alone "
+                         f"{lane_points[worst]:.3g})", file=name)
     points, line = resample_polylines(np.vstack(shapes), vertex_line, step)
     lon, lat = lonlat(points)
     lane_type = np.array(types, dtype=object)[line]

@@ -29,6 +29,8 @@ def vertex_problem(x: float, y: float) -> str | None:
     """Why (x, y) cannot be a vertex of a real map (one phrase), or None when it can."""
     if not off_earth(x, y):
         return None
+    if not (np.isfinite(x) and np.isfinite(y)):
+        return f"x={x:.6g}, y={y:.6g} is not a number"
     if any(abs(abs(v) - SUMO_INVALID_POSITION) <= 1e-3 * SUMO_INVALID_POSITION for v in (x, y)):
         return (f"x={x:.10g}, y={y:.10g} is SUMO's invalid-position sentinel (-2^30 m): netconvert could not "
                 "compute this vertex")
