@@ -33,8 +33,8 @@ def _bias(value: str | None) -> tuple[float, float, float]:
               help="replay: drive the matched lane centres in recording order, wherever the recording went; "
                    "legal: the cheapest connected lane route through the matched lanes, as a car may drive.")
 @click.option("--random", "random_route", is_flag=True,
-              help="Drive random routes that never dead-end (inside the largest strongly connected part of "
-                   "the lane graph).")
+              help="Drive random routes that always make progress: around the map's closed loops, else turning "
+                   "around at dead ends, else restarting (docs/twin.md, Routes).")
 @click.option("--duration", type=click.FloatRange(min=0, min_open=True), metavar="S",
               help="Simulated seconds. Default: 60 for --random, the whole trace for --route.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of every random choice and noise.")
@@ -119,6 +119,9 @@ def drive(map_dir, route, route_mode, random_route, duration, seed, speed_kmh, c
                f" wall: {metrics['real_time_factor']}x real time -> {out_dir}")
     click.echo(f"resets {metrics['resets']}  collisions {metrics['collisions']}  off-road "
                f"{metrics['off_road_seconds']:.2f} s  lateral error mean {metrics['lateral_error_mean_m']:.3f} m")
+    if metrics.get("turnarounds") or metrics.get("restarts"):
+        click.echo(f"routes ({metrics.get('route_mode')} mode): {metrics['turnarounds']} turnarounds at dead ends, "
+                   f"{metrics['restarts']} restarts (see docs/twin.md, Routes)")
     if "trace_distance_mean_m" in metrics:
         click.echo(f"trace: distance to the driven path {metrics['trace_distance_mean_m']:.3f} m mean, noise floor "
                    f"{metrics['trace_floor_mean_m']:.3f} m ({metrics['trace_fixes_matched']} matched fixes)")
