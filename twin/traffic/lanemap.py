@@ -100,7 +100,9 @@ def _sample_polylines(arrays, rows: list[int]) -> tuple[np.ndarray, np.ndarray]:
     rows_array = np.array(rows, dtype=np.int64)
     section = arrays.lane_section[rows_array]
     s0, s1 = arrays.section_s0[section], arrays.section_end[section]
-    count = np.maximum(2, np.ceil((s1 - s0) / SAMPLE_STEP_M).astype(int) + 1)
+    count = np.maximum(2.0, np.ceil((s1 - s0) / SAMPLE_STEP_M) + 1)
+    arrays.budget.check(arrays.section_road[section], count, f"lane centre lines every {SAMPLE_STEP_M:g} m")
+    count = count.astype(int)
     owner = np.repeat(np.arange(len(rows)), count)
     first = np.repeat(np.cumsum(count) - count, count)
     u = (np.arange(len(owner)) - first) / np.repeat(count - 1, count)  # 0..1 along each lane
