@@ -18,7 +18,8 @@ from tavf_mapkit.opendrive import load_opendrive, loads_opendrive
 from twin.cli.main import cli
 from twin.map.lanelines import LaneLines, without_folds, without_loops
 from twin.planning.buffer import PathBuffer
-from twin.planning.chunks import RESTART, TURNAROUND, LaneCodes, RouteBreak, RouteStalled, expand_route, route_spans
+from twin.planning.chunks import (RESTART, TURNAROUND, LaneCodes, RouteBreak, RouteStalled, expand_route,
+                                  route_spans)
 from twin.planning.drivable import corner_cut, min_turn_radius, undrivable_lanes
 from twin.planning.random_routes import RandomRoutes
 from twin.sim.build import Build
@@ -68,7 +69,8 @@ def test_a_lane_change_cycle_is_no_loop_and_a_route_stuck_in_one_raises():
 
 
 def test_a_route_over_lanes_without_length_raises():
-    graph, lines = _graph(_straight_road(0.5, right=[_lane(-1)]), _straight_road(50.0, right=[_lane(-1)], road_id="2"))
+    graph, lines = _graph(_straight_road(0.5, right=[_lane(-1)]),
+                          _straight_road(50.0, right=[_lane(-1)], road_id="2"))
     tiny = LaneKey(0, 0, -1)
     with pytest.raises(RouteStalled, match="without covering a metre"):
         list(expand_route(lines, LaneCodes(graph), itertools.islice(itertools.repeat(tiny), 5000)))
@@ -102,7 +104,8 @@ def test_a_single_two_way_street_turns_around_at_both_ends():
 
 
 def test_a_one_way_dead_end_restarts():
-    graph, lines = _graph(_straight_road(80.0, right=[_lane(-1)]), _straight_road(60.0, right=[_lane(-1)], road_id="2"))
+    graph, lines = _graph(_straight_road(80.0, right=[_lane(-1)]),
+                          _straight_road(60.0, right=[_lane(-1)], road_id="2"))
     routes = RandomRoutes(graph, lines)
     assert routes.mode == "restart"
     items = _items(routes, 400, seed=1)
@@ -120,8 +123,8 @@ def test_closed_loops_are_preferred_and_never_need_a_break(sample_build_dir):
 
 def test_folds_of_an_offset_centre_line_are_cut_out():
     # a straight line with a swallowtail: forward to x=10, a loop back to x=8, on again
-    loop = np.array([[0, 0, 0], [5, 0, 0], [10, 0, 0], [10.5, 0.5, 0], [9.5, 1.0, 0], [8.0, 0.3, 0], [9, -0.2, 0],
-                     [12, -0.2, 0], [20, -0.2, 0]], dtype=float)
+    loop = np.array([[0, 0, 0], [5, 0, 0], [10, 0, 0], [10.5, 0.5, 0], [9.5, 1.0, 0], [8.0, 0.3, 0],
+                     [9, -0.2, 0], [12, -0.2, 0], [20, -0.2, 0]], dtype=float)
     cut = without_loops(loop)
     assert len(cut) < len(loop) and np.all(np.diff(cut[:, 0]) > 0)  # only forward steps are left
     # a zig-zag that doubles back without crossing (the fold of a lane cut by the lane's end)
@@ -196,13 +199,14 @@ def test_krautsand_drives_ten_minutes_turning_around_at_its_dead_ends(krautsand_
     used to refuse it. Now it drives, turns around at the dead ends, and ends by itself, reproducibly."""
     runs = []
     for name in ("a", "b"):
-        result = CliRunner().invoke(cli, ["drive", "--map", str(krautsand_build), "--random", "--duration", "600",
-                                          "--seed", "0", "--out", str(tmp_path / name), "--no-record", "--no-plot",
-                                          "--format", "json"])
+        result = CliRunner().invoke(cli, ["drive", "--map", str(krautsand_build), "--random", "--duration",
+                                          "600", "--seed", "0", "--out", str(tmp_path / name), "--no-record",
+                                          "--no-plot", "--format", "json"])
         assert result.exit_code == 0, result.output
         runs.append(json.loads(result.output))
     metrics = runs[0]
     assert metrics["route_mode"] == "turnaround" and metrics["turnarounds"] >= 1 and metrics["restarts"] == 0
     assert metrics["resets"] == 0 and metrics["collisions"] == 0 and metrics["off_road_seconds"] == 0.0
     assert metrics["distance_m"] > 5000 and metrics["sim_seconds"] == 600.0
-    assert (tmp_path / "a" / "trajectory.csv").read_bytes() == (tmp_path / "b" / "trajectory.csv").read_bytes()
+    trajectories = [(tmp_path / name / "trajectory.csv").read_bytes() for name in ("a", "b")]
+    assert trajectories[0] == trajectories[1]

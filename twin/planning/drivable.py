@@ -1,4 +1,5 @@
-"""Which lanes, and which steps from one lane to the next, a car can drive in lane, measured as a car meets them.
+"""Which lanes, and which steps from one lane to the next, a car can drive in lane, measured as a car meets
+them.
 
 Two things a car cannot follow:
 
@@ -35,7 +36,7 @@ from twin.planning.chunks import DEGENERATE_LANE
 from twin.vehicle.params import MODEL_S, VehicleParams
 
 U_TURN = np.radians(135.0)
-MAX_CUT = 1.0  # m a car at full lock may cut a bend: it stays inside its lane's clearance, far from "lost" (4 m)
+MAX_CUT = 1.0  # m a car at full lock may cut a bend: inside its lane's clearance, far from "lost" (4 m)
 WINDOWS = (1.0, 2.0, 4.0, 8.0, 16.0)  # m of arc over which bends are measured
 REACH = 8.0  # m of each lane around a transition that the measure looks at
 CHAIN = 4  # sub-metre lanes (and one U-turn lane) a transition may pass
@@ -90,7 +91,8 @@ def undrivable_lanes(graph: LaneGraph, lines: LaneLines, radius: float | None = 
     "cuts a bend by X m")."""
     radius = min_turn_radius() if radius is None else radius
     lines.preload(sorted(graph.keys))
-    measured = [k for k in sorted(graph.keys) if lines[k].length >= DEGENERATE_LANE and len(lines[k].points) >= 2]
+    measured = [k for k in sorted(graph.keys)
+                if lines[k].length >= DEGENERATE_LANE and len(lines[k].points) >= 2]
     if not measured:
         return {}
     points = [lines[k].points[:, :2] for k in measured]

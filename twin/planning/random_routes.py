@@ -9,8 +9,8 @@ Where the walk goes, in order of preference:
 
 1. ``loop``: the largest strongly connected component of follow and lane-change edges that has a cycle
    covering distance (a follow edge; every lane of the walk is at least ``DEGENERATE_LANE`` long). A cycle
-   of lane changes alone never counts: changing lanes does not move a car along the road, and a walk that only changes
-   lanes would never get anywhere.
+   of lane changes alone never counts: changing lanes does not move a car along the road, and a walk that
+   only changes lanes would never get anywhere.
 2. ``turnaround``: where closed loops are missing or cover less than half of what turnarounds open up
    (rural trees, a single two-way street, streets the extract cut off): at a dead end (a lane without a
    follow edge and no lane change towards one) the walk turns around onto the nearest lane of the opposite
@@ -69,8 +69,7 @@ class RandomRoutes:
             self.mode, lanes = "restart", frozenset(keep)
         self.lanes = lanes
         self._sorted = sorted(lanes)
-        self._starts = self._sorted
-        if not self._starts:
+        if not self._sorted:
             raise InputError(f"the lane graph has no drivable lane of {DEGENERATE_LANE:g} m or more: "
                              "there is nowhere to drive")
         self._follow = {k: sorted(b for b in follow[k] if b in lanes) for k in self._sorted}
@@ -97,7 +96,8 @@ class RandomRoutes:
                            if graph.drives_with_s(k) is not forward)
             if targets:
                 end = lines[key].points[-1, :2]
-                found[key] = [min(targets, key=lambda k: (float(np.hypot(*(lines[k].points[0, :2] - end))), k))]
+                found[key] = [min(targets, key=lambda k: (float(np.hypot(*(lines[k].points[0, :2] - end))),
+                                                            k))]
         return found
 
     def _length(self, lanes) -> float:
@@ -131,7 +131,9 @@ class RandomRoutes:
         for a in self._sorted:
             for b in self._lateral[a]:
                 changes_in[b].append(a)
-        for exits in ([k for k in self._sorted if self._follow[k]], [k for k in self._sorted if k in self._turnaround]):
+        driving_on = [k for k in self._sorted if self._follow[k]]
+        turning = [k for k in self._sorted if k in self._turnaround]
+        for exits in (driving_on, turning):
             distance = {k: 0 for k in exits}
             queue = deque(exits)
             while queue:
@@ -152,8 +154,8 @@ class RandomRoutes:
 
     def start_lane(self, rng: np.random.Generator) -> LaneKey:
         """A lane drawn with probability proportional to its length (so starts spread over the network)."""
-        lengths = np.array([self.lines[k].length for k in self._starts]) + 1.0
-        return self._starts[int(rng.choice(len(self._starts), p=lengths / lengths.sum()))]
+        lengths = np.array([self.lines[k].length for k in self._sorted]) + 1.0
+        return self._sorted[int(rng.choice(len(self._sorted), p=lengths / lengths.sum()))]
 
     def next_lane(self, key: LaneKey, rng: np.random.Generator,
                   came_from: LaneKey | None = None) -> tuple[RouteBreak | None, LaneKey]:
