@@ -221,7 +221,8 @@ def run_drive(build: Path, seed: int, args, scratch: Path, tag: str) -> Drive:
 def run_map(name: str, source: Path, args, scratch: Path) -> Row:
     row = Row(name=name, input=str(source), kind=input_kind(source))
     folder = scratch / name / "build"
-    shutil.rmtree(scratch / name, ignore_errors=True)
+    if not args.incremental:
+        shutil.rmtree(scratch / name, ignore_errors=True)
     command = [str(BIN / "mapkit"), "build", str(source), "-o", str(folder), "-q", "--json"]
     built = run_limited(command, args.build_timeout, args.memory_mib)
     row.build_status, row.build_s, row.build_peak_mib = status_of(built), round(built.wall, 2), round(
@@ -343,6 +344,9 @@ def parse_args(argv=None):
                         help="skip the second drive of the first seed (byte-identical trajectory check)")
     parser.add_argument("--scratch", type=Path, help="where builds and runs go (default: a temporary folder)")
     parser.add_argument("--keep", action="store_true", help="keep the scratch folder")
+    parser.add_argument("--incremental", action="store_true",
+                        help="keep earlier builds in --scratch, so mapkit reuses their unchanged stages (build s "
+                             "is then the rebuild time)")
     parser.add_argument("--json", type=Path, help="also write every row as JSON here")
     parser.add_argument("--markdown", type=Path, help="also write the table as Markdown here (e.g. docs/zoo.md)")
     args = parser.parse_args(argv)
