@@ -138,3 +138,11 @@ def test_unreadable_opendrive_input_is_one_line(tmp_path):
     assert result.exit_code == 2
     assert result.output.strip().splitlines()[-1] == f"Error: {empty}: the OpenDRIVE file has no <road>"
     assert not (tmp_path / "out").exists()
+
+
+def test_an_area_is_refused_for_opendrive_input(lht_build, tmp_path):
+    source, _ = lht_build
+    result = _mapkit("build", str(source), "-o", str(tmp_path / "out"), "--bbox", "0,0,0.001,0.001")
+    assert result.exit_code == 2
+    assert result.output.strip().splitlines()[-1] == (f"Error: {source}: an area (--bbox, --polygon, [area]) cuts "
+                                                     "OSM or SUMO input; an OpenDRIVE input is built whole")

@@ -89,6 +89,9 @@ def run_build(input_path: str | Path, config: PipelineConfig, output: str | Path
     if not input_path.is_file():
         raise InputError("file not found" if not input_path.exists() else "is not a file",
                          file=str(input_path))
+    if kind == "opendrive" and config.section("area"):
+        raise InputError("an area (--bbox, --polygon, [area]) cuts OSM or SUMO input; an OpenDRIVE input is built "
+                         "whole", file=str(input_path))
     target = Path(output) if output else Path("build") / default_build_name(input_path, config)
     if target.name in ("", ".", ".."):
         raise InputError("the build folder needs a name (e.g. -o build/tavf)", file=str(target))
