@@ -160,7 +160,7 @@ def test_a_tiny_step_on_a_long_road_is_refused_before_allocating(tmp_path):
     line = _line_of(path.read_text(), '<road id="1"')
     assert _one_error_line(out + err) == (
         f"Error: {path}:{line}: road 1: sampling every 0.001 m would allocate 2e+07 points, more than the budget "
-        "of 5e+06 (2e+07 of them on this road)")
+        "of 4e+06 (2e+07 of them on this road)")
 
 
 def test_a_dash_of_a_nanometre_is_refused_by_the_mesher(tmp_path):
@@ -176,7 +176,7 @@ def test_a_dash_of_a_nanometre_is_refused_by_the_mesher(tmp_path):
     assert result.exit_code == 2 and "Traceback" not in result.output
     assert result.output.strip() == (
         f"Error: {path}:{_line_of(text, '<road id=')}: road 1: road-mark dashes would allocate 5e+10 points, more "
-        "than the budget of 5e+06 (5e+10 of them on this road)")
+        "than the budget of 4e+06 (5e+10 of them on this road)")
 
 
 # --- repair of netconvert's output ---------------------------------------------------------------------------

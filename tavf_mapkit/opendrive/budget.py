@@ -26,10 +26,10 @@ from tavf_mapkit.errors import InputError
 from tavf_mapkit.opendrive.cubic import cubic_largest_magnitude
 from tavf_mapkit.opendrive.plausibility import Extent, length_text, off_earth, vertex_problem
 
-#: points one allocation may hold; a lane sample costs ~400 bytes through sampling and surface points,
-#: so this keeps a single step of any command near 2 GB. The largest zoo map (Andorra, 858 km of road)
-#: needs 2.0 million at 0.5 m, its adaptive mesh 0.7 million per pass.
-MAX_POINTS = 5_000_000
+#: points one allocation may hold; a lane sample costs ~400 bytes through sampling and surface points, so a
+#: command stays below 2 GB (`mapkit export` of Andorra, 858 km of road: 3.9 million at 0.25 m, 1.86 GB peak;
+#: 4.9 million at 0.2 m would take 2.24 GB). Andorra needs 2.0 million at 0.5 m, its adaptive mesh 0.7 million.
+MAX_POINTS = 4_000_000
 #: a road may be this many times as long as the map's extent is wide
 WINDING = 10.0
 #: m; every map may have roads this long, however small its extent (a single straight road has none)
