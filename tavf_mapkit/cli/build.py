@@ -27,12 +27,15 @@ from tavf_mapkit.cli.options import area_from, bbox_option, json_option, polygon
                    "SUMO network's lefthand flag, or an OpenDRIVE file's road rule.")
 @click.option("-o", "--output", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Build folder (default: build/NAME, NAME from the pipeline or the input file).")
+@click.option("--no-repair", "no_repair", is_flag=True,
+              help="Keep netconvert's OpenDRIVE as written, for comparison ([opendrive] repair = false); only "
+                   "geometry no build can use (vertices off Earth, absurd lengths) is still repaired.")
 @click.option("--force", is_flag=True, help="Rerun every stage even if its inputs and options are unchanged.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress lines.")
 @json_option
 def build(input_path: Path, pipeline_file: Path | None, bbox, polygon: Path | None, profile: str | None,
-          crs: str | None, driving_side: str | None, output: Path | None, force: bool, quiet: bool,
-          as_json: bool) -> None:
+          crs: str | None, driving_side: str | None, output: Path | None, no_repair: bool, force: bool,
+          quiet: bool, as_json: bool) -> None:
     """Build a driving-simulation world from OSM, a SUMO network or an OpenDRIVE file.
 
     \b
@@ -41,6 +44,7 @@ def build(input_path: Path, pipeline_file: Path | None, bbox, polygon: Path | No
     $ mapkit build network.net.xml.gz --profile full --crs keep --json
     $ mapkit build Town04.xodr -o build/town04
     $ mapkit build london.osm.pbf --driving-side left
+    $ mapkit build network.net.xml.gz -o build/raw --no-repair
 
     \b
     Stages: extract -> netconvert -> opendrive -> mesh -> collision -> check -> report
@@ -60,16 +64,17 @@ def build(input_path: Path, pipeline_file: Path | None, bbox, polygon: Path | No
 
     area = area_from(bbox, polygon)
     side = driving_side.lower() if driving_side else None
+    repair = False if no_repair else None  # None: the pipeline's [opendrive] repair (default true)
     config = load_pipeline(pipeline_file)
     if area is not None:
         if area.polygon is not None:
             config = config.with_overrides(polygon=polygon, profile=profile, crs=crs,
-                                          driving_side=side)
+                                          driving_side=side, repair=repair)
         else:
             config = config.with_overrides(bbox=area.bbox, profile=profile, crs=crs,
-                                          driving_side=side)
+                                          driving_side=side, repair=repair)
     else:
-        config = config.with_overrides(profile=profile, crs=crs, driving_side=side)
+        config = config.with_overrides(profile=profile, crs=crs, driving_side=side, repair=repair)
 
     def progress(line: str) -> None:
         if not quiet:

@@ -86,7 +86,6 @@ def _step_profile(records: list[tuple[float, float]]) -> CubicProfile:
 @dataclass(frozen=True, eq=False)
 class NetworkArrays:
     geometries: GeometryTable
-    geometry_keys: np.ndarray
     elevation: RecordTable
     superelevation: RecordTable
     lane_offset: RecordTable
@@ -140,7 +139,6 @@ class NetworkArrays:
                         heights_outer.append(_step_profile([(h.s0, h.outer) for h in lane.heights]))
         arrays = NetworkArrays(
             geometries=table,
-            geometry_keys=table.group + table.s / span,
             elevation=RecordTable.build([r.elevation for r in roads], span),
             superelevation=RecordTable.build([r.superelevation for r in roads], span),
             lane_offset=RecordTable.build([r.lane_offset for r in roads], span),
@@ -174,12 +172,8 @@ class NetworkArrays:
         """(x, y, z, heading, slope, superelevation, lane_offset) for arrays of (road index, s)."""
         n = len(s)
         if len(self.geometries):
-            index = np.searchsorted(self.geometry_keys, road + s / self.span, side="right") - 1
-            index = np.clip(index, 0, len(self.geometries) - 1)
-            # a road whose samples fall before its first geometry still uses that first geometry
-            first = np.searchsorted(self.geometries.group, road, side="left")
-            index = np.where(self.geometries.group[index] != road, np.minimum(first, len(self.geometries) - 1), index)
-            has = self.geometries.group[index] == road
+            # the rule ReferenceLine uses too: before a road's first geometry, that first one
+            index, has = self.geometries.locate(road, s)
             x, y, heading, _ = self.geometries.evaluate(index, s - self.geometries.s[index])
             x, y, heading = (np.where(has, v, 0.0) for v in (x, y, heading))
         else:

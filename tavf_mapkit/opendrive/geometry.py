@@ -86,6 +86,28 @@ class GeometryTable:
     def __len__(self) -> int:
         return len(self.s)
 
+    def locate(self, group: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(index, found): the geometry that governs each (group, s) -- the group's last one starting at or
+        before s; before its first one, that first one (extrapolated back) -- and whether the group has any.
+
+        The one rule by which s picks a geometry: a single road (ReferenceLine) and the whole map
+        (NetworkArrays) both evaluate through it. The keys group + i*s are complex numbers, which numpy orders
+        lexicographically, so the search is exact in s (no s / span scaling)."""
+        group = np.asarray(group, dtype=np.int64)
+        s = np.asarray(s, dtype=float)
+        if not len(self.s):
+            return np.zeros(len(s), dtype=np.int64), np.zeros(len(s), dtype=bool)
+        keys = self.__dict__.get("_keys")
+        if keys is None:
+            keys = self.group + 1j * self.s
+            object.__setattr__(self, "_keys", keys)
+        index = np.searchsorted(keys, group + 1j * s, side="right") - 1
+        first = np.searchsorted(self.group, group, side="left")
+        last = len(self.s) - 1
+        before_first = (index < 0) | (self.group[np.clip(index, 0, last)] != group)
+        index = np.where(before_first, np.minimum(first, last), index)
+        return index, self.group[index] == group
+
     def evaluate(self, index: np.ndarray, ds: np.ndarray):
         """(x, y, heading, curvature) of geometry ``index[i]`` at distance ``ds[i]`` along it."""
         x = np.empty(len(index))
@@ -200,9 +222,12 @@ def _poly3(params, length, ds, geometry=None):
 
 
 def _param_poly3(params, length, ds, geometry=None):
-    """s is arc length along the curve while p need not be; the geometry's @length is mapped onto the
-    curve's true length, so that consecutive geometries stay joined even when the file's @length is off
-    by a few millimetres (the validator reports such files)."""
+    """s is arc length along the curve (the standard's definition; CARLA and libOpenDRIVE read it so too),
+    whatever p is: the sample at ds lies at arc length ds from the curve's start. p runs over [0, 1]
+    (pRange normalized) or [0, @length] (arcLength); either way the curve ends where p does, and s beyond its
+    true length holds that end point. A file whose @length is not that true length therefore leaves a gap
+    (@length too short) or a still stretch (too long) at the geometry's end: the validator reports it
+    (geometry.param-poly3-length, geometry.gap) and the build repairs it (opendrive/repair_lengths.py)."""
     aU, bU, cU, dU, aV, bV, cV, dV, normalized = (params[:, i] for i in range(9))
     # one table per distinct geometry: samples share the geometry's row
     ids = np.arange(len(ds)) if geometry is None else geometry
@@ -216,10 +241,9 @@ def _param_poly3(params, length, ds, geometry=None):
         dv = gu[r, 5] + p * (2 * gu[r, 6] + 3 * gu[r, 7] * p)
         return np.hypot(du, dv)
 
-    total = _arc_length_inverse_total(speed, g_end)
-    scale = np.divide(total[row], length, out=np.ones_like(length), where=length > 0)
-    p = _arc_length_inverse(speed, g_end, ds * scale, row)
-    p = np.where(length > 0, p, 0.0)
+    total = param_poly3_length(gu, g_end)
+    p = _arc_length_inverse(speed, g_end, np.minimum(ds, total[row]), row)
+    p = np.where(ds < total[row], p, g_end[row])  # at and past the curve's end: exactly its end
     u = aU + p * (bU + p * (cU + p * dU))
     v = aV + p * (bV + p * (cV + p * dV))
     u1 = bU + p * (2 * cU + 3 * dU * p)
@@ -229,6 +253,17 @@ def _param_poly3(params, length, ds, geometry=None):
     speed_p = np.hypot(u1, v1)
     curvature = np.divide(u1 * v2 - v1 * u2, speed_p ** 3, out=np.zeros_like(speed_p), where=speed_p > 0)
     return u, v, np.arctan2(v1, u1), curvature
+
+
+def param_poly3_length(params: np.ndarray, p_end: np.ndarray) -> np.ndarray:
+    """True arc length of paramPoly3 curves (parameter rows as GeometryTable.params) over p in [0, p_end]."""
+
+    def speed(r, p):
+        du = params[r, 1] + p * (2 * params[r, 2] + 3 * params[r, 3] * p)
+        dv = params[r, 5] + p * (2 * params[r, 6] + 3 * params[r, 7] * p)
+        return np.hypot(du, dv)
+
+    return _arc_length_inverse_total(speed, np.asarray(p_end, dtype=float))
 
 
 def _arc_length_inverse_total(speed, p_end: np.ndarray) -> np.ndarray:

@@ -20,10 +20,12 @@ class ReferenceLine:
 
     def geometry_index(self, s: np.ndarray) -> np.ndarray:
         """Index of the geometry that governs each s; zero-length geometries are never chosen over a successor."""
-        return np.clip(np.searchsorted(self.table.s, s, side="right") - 1, 0, max(len(self.geometries) - 1, 0))
+        s = np.atleast_1d(np.asarray(s, dtype=float))
+        return self.table.locate(np.zeros(len(s), dtype=np.int64), s)[0]
 
     def evaluate(self, s):
-        """(x, y, heading, curvature) at each s (arrays)."""
+        """(x, y, heading, curvature) at each s (arrays); the map-wide NetworkArrays.reference evaluates alike
+        (the same GeometryTable.locate and kernels)."""
         s = np.atleast_1d(np.asarray(s, dtype=float))
         if not self.geometries:
             zero = np.zeros_like(s)

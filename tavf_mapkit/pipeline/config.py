@@ -43,9 +43,12 @@ class PipelineConfig:
         return found
 
     def with_overrides(self, *, bbox=None, polygon: Path | None = None, profile: str | None = None,
-                       crs: str | None = None, driving_side: str | None = None) -> PipelineConfig:
+                       crs: str | None = None, driving_side: str | None = None,
+                       repair: bool | None = None) -> PipelineConfig:
         """A copy with command-line options applied (an area option replaces the pipeline's area)."""
         sections = copy.deepcopy(self.sections)
+        if repair is not None:
+            sections.setdefault("opendrive", {})["repair"] = repair
         if bbox is not None or polygon is not None:
             sections["area"] = {"bbox": list(bbox)} if bbox is not None else {"polygon_path": Path(polygon)}
         netconvert = sections.setdefault("netconvert", {})

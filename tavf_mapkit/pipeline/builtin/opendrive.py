@@ -2,9 +2,12 @@
 what it holds (report/opendrive.json). A file our reader cannot read fails the build here, not in the mesher.
 
 netconvert's output is never trusted: a vertex it could not compute (SUMO's invalid-position sentinel), one
-off Earth or far outside the network's extent, and absurd lengths are repaired (tavf_mapkit/opendrive/repair.py)
-and NAME.xodr is rewritten; each repair is counted in the facts (``repairs``) and named in the build's output.
-A file broken beyond repair fails here with one line naming road and line.
+off Earth or far outside the network's extent, and absurd lengths are repaired (tavf_mapkit/opendrive/repair.py),
+then what keeps the file from being read alike by every reader (``_repair_steps``: @length that is not the
+curve's arc length, ...), and NAME.xodr is rewritten; each repair is counted in the facts (``repairs``) and named
+in the build's output. A file broken beyond repair fails here with one line naming road and line.
+``--no-repair`` ([opendrive] repair = false) keeps netconvert's file as it is for comparison, except for the
+first step: geometry that cannot be built on at all (a road to the sentinel, 3,000,000 km long) is still repaired.
 
 When the build's input is an OpenDRIVE file (no extract, no netconvert), this stage brings it into the build
 as NAME.xodr (tavf_mapkit/opendrive/importing.py) and decides the driving side from its roads' ``rule``
@@ -23,11 +26,15 @@ from tavf_mapkit.pipeline.stages import Stage, StageOutput, register_stage
 @register_stage("opendrive")
 class OpenDriveStage(Stage):
     inputs = ("xodr",)
-    version = "3"  # 2: an OpenDRIVE input becomes the build's NAME.xodr; 3: netconvert's output repaired
+    # 2: an OpenDRIVE input becomes the build's NAME.xodr; 3: netconvert's output repaired; 4: @length set to the
+    # arc length, [opendrive] repair
+    version = "4"
     description = "read and check the OpenDRIVE (counts, bounds, georeference plausibility)"
 
     def options(self, context: BuildContext) -> dict:
-        return {"driving_side": context.config.driving_side} if context.input_kind == "opendrive" else {}
+        if context.input_kind == "opendrive":
+            return {"driving_side": context.config.driving_side}
+        return {"repair": repair_enabled(context)}
 
     def run(self, context: BuildContext) -> StageOutput:
         from tavf_mapkit.opendrive.summary import summarise
@@ -41,6 +48,8 @@ class OpenDriveStage(Stage):
             if repairs:  # the rewritten NAME.xodr is this stage's output from now on
                 files["xodr"] = str(context.artifacts["xodr"].relative_to(context.folder))
             more_facts["repairs"] = repair_facts(repairs)
+            if not repair_enabled(context):
+                more_facts["repair"] = False  # --no-repair: "no repairs" does not mean none were needed
         summary = summarise(odr)
         summary["file"] = files.get("xodr") or context.artifacts["xodr"].name
         path = context.output_path("report/opendrive.json")
@@ -66,14 +75,38 @@ MAX_DROPPED_SHARE = 0.05
 MAX_DROPPED_MIN = 10
 
 
+def repair_enabled(context: BuildContext) -> bool:
+    """[opendrive] repair (``mapkit build --no-repair`` sets it false); true unless said otherwise."""
+    return bool(context.section("opendrive").get("repair", True))
+
+
+def _repair_steps(context: BuildContext) -> list:
+    """The repairs of netconvert's OpenDRIVE in the order they run: each takes the map the one before returned
+    and returns (map, [Repair]). The first makes a build possible at all and runs even with --no-repair; the
+    others make the file one that every reader reads alike. A new repair is one more entry, in its own module."""
+    from tavf_mapkit.opendrive.repair import repair_untrusted_geometry
+    from tavf_mapkit.opendrive.repair_lengths import repair_geometry_lengths
+
+    extent = _network_extent(context)
+    steps = [lambda odr: repair_untrusted_geometry(odr, extent)]
+    if repair_enabled(context):
+        steps += [
+            repair_geometry_lengths,  # @length = arc length; everything along s moved with it
+        ]
+    return steps
+
+
 def _repaired_netconvert_output(context: BuildContext):
     """netconvert's OpenDRIVE with its impossible geometry repaired (NAME.xodr rewritten when anything was)."""
     from tavf_mapkit.errors import StageError
-    from tavf_mapkit.opendrive.repair import DROPPED_ROAD, repair_untrusted_geometry
+    from tavf_mapkit.opendrive.repair import DROPPED_ROAD
     from tavf_mapkit.opendrive.writer import write_opendrive
 
     odr = context.opendrive()
-    repaired, repairs = repair_untrusted_geometry(odr, _network_extent(context))
+    repaired, repairs = odr, []
+    for step in _repair_steps(context):
+        repaired, made = step(repaired)
+        repairs += made
     if not repairs:
         return odr, []
     dropped = [repair for repair in repairs if repair.action == DROPPED_ROAD]
@@ -83,10 +116,13 @@ def _repaired_netconvert_output(context: BuildContext):
         raise StageError(f"netconvert's OpenDRIVE is broken beyond repair ({len(dropped)} of {len(odr.roads)} "
                          f"roads would be dropped); the first: {first.detail}", file=xodr.name, line=first.line,
                          road=first.road)
-    for repair in repairs[:5]:
-        context.note(f"repaired netconvert's OpenDRIVE: {repair}")
-    if len(repairs) > 5:
-        context.note(f"... and {len(repairs) - 5} more repairs (facts of stage opendrive in manifest.json)")
+    by_action: dict = {}
+    for repair in repairs:
+        by_action.setdefault(repair.action, []).append(repair)
+    for action, made in by_action.items():  # one line per kind of repair: hundreds are routine
+        more = f" (and {len(made) - 1} more of {action!r}: facts of stage opendrive in manifest.json)" \
+            if len(made) > 1 else ""
+        context.note(f"repaired netconvert's OpenDRIVE: {made[0]}{more}")
     # netconvert stamps its output with the time (header @date): without the stamp the repaired file depends on
     # the input only, so a rebuild -- which reruns netconvert, whose file this no longer is -- reuses the stages
     # after this one

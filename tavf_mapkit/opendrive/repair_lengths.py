@@ -1,0 +1,244 @@
+"""Repair @length: every geometry as long as its curve, and everything along s moved with it.
+
+s is the distance along the reference line, so a geometry's @length is its curve's arc length. netconvert
+computes a paramPoly3's @length from the polyline it fitted the curve to, up to 24 cm short (DLR's TAVF
+network; the validator's geometry.param-poly3-length). Read as the standard says (s = arc length; CARLA and
+libOpenDRIVE do so too), such a road stops short of its curve's end: a gap before the next geometry or road.
+
+netconvert's own s along such a curve -- of lane sections, widths, road marks, objects and signals -- is the
+polyline's length, which grows in proportion to the curve's; so does the reading of this toolkit before it
+read s as arc length, on which builds, meshes and drives were made. The repair keeps that placement: the
+geometry's @length becomes its true arc length (``param_poly3_length``, exact to double precision), the s of
+every later geometry and of every record of the road is mapped old s -> new s, stretched by arc length /
+@length inside the repaired geometry and shifted after it, and cubic records (laneOffset, width, border,
+elevation, superelevation) are re-expanded exactly in the new s -- split where the stretch changes inside
+them, unless they are constant there. Every lane border therefore lies where that reading put it, and each
+road ends exactly where its curve does. A file whose lengths are right is returned unchanged (idempotent).
+
+Only a paramPoly3 can be off: a line, arc or spiral is defined by its length, and a poly3's u runs as far as
+its arc length says. A road whose geometries are not in s order is left alone (structure.s-order).
+"""
+
+from __future__ import annotations
+
+from bisect import bisect_right
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from tavf_mapkit.opendrive.cubic import CubicProfile
+from tavf_mapkit.opendrive.geometry import GeometryKind, param_poly3_length
+from tavf_mapkit.opendrive.refline import ReferenceLine
+from tavf_mapkit.opendrive.repair import Repair
+
+#: Repair.action of this repair
+GEOMETRY_LENGTH = "geometry length"
+
+#: an @length within this of the arc length is left as it is (netconvert writes 8 decimals: 1e-8 m)
+TOLERANCE = 1e-6
+
+
+def true_lengths(table) -> np.ndarray:
+    """Arc length of every row of a GeometryTable: @length, except for a paramPoly3 its curve's true length."""
+    lengths = table.length.copy()
+    rows = np.flatnonzero(table.kind == int(GeometryKind.PARAM_POLY3))
+    if len(rows):
+        params = table.params[rows]
+        p_end = np.where(params[:, 8] > 0.5, 1.0, table.length[rows])
+        lengths[rows] = param_poly3_length(params, p_end)
+    return lengths
+
+
+def repair_geometry_lengths(odr, tolerance: float = TOLERANCE):
+    """(repaired map, repairs): one Repair per road whose geometries' @length was not their arc length."""
+    from tavf_mapkit.opendrive.network import OpenDriveMap
+
+    table = odr.arrays.geometries
+    if not len(table):
+        return odr, []
+    arc = true_lengths(table)
+    # a zero-length geometry is never evaluated (the next one governs its s): not a length to repair here
+    wrong = (np.abs(arc - table.length) > tolerance) & (table.length > 0)
+    if not wrong.any():
+        return odr, []
+    starts = np.searchsorted(table.group, np.arange(len(odr.roads)), side="left")
+    roads, repairs = list(odr.roads), []
+    for index in np.unique(table.group[wrong]).tolist():
+        road = roads[index]
+        n = len(road.reference_line.geometries)
+        rows = slice(int(starts[index]), int(starts[index]) + n)
+        s = table.s[rows]
+        if np.any(np.diff(s) < 0):
+            continue
+        roads[index] = _stretched(road, arc[rows], wrong[rows])
+        changed = arc[rows][wrong[rows]] - table.length[rows][wrong[rows]]
+        first = next(g for g, bad in zip(road.reference_line.geometries, wrong[rows]) if bad)
+        repairs.append(Repair(
+            GEOMETRY_LENGTH, road.id, first.line,
+            f"{len(changed)} paramPoly3 @length set to the curve's arc length (by {_signed(changed)} m); "
+            f"road @length {road.length:.9g} -> {roads[index].length:.9g} m"))
+    if not repairs:
+        return odr, []
+    return OpenDriveMap(odr.header, tuple(roads), odr.junctions, odr.controllers, odr.source, odr.warnings,
+                        odr.extra_xml), repairs
+
+
+def _signed(changes: np.ndarray) -> str:
+    worst = changes[np.argmax(np.abs(changes))]
+    return f"{worst:+.4g}" if len(changes) == 1 else f"up to {worst:+.4g}"
+
+
+@dataclass(frozen=True)
+class SMap:
+    """old s -> new s: piecewise linear through breakpoints ``old[i] -> new[i]`` with ``slope[i]`` on
+    [old[i], old[i+1]); slope 1 before the first and after the last breakpoint. Where the slope is 1 the map is
+    a shift, computed as s + (new - old) so that s not moved at all stays bit for bit what it was.
+
+    Plain Python floats: a road has a few breakpoints and records, and scalar numpy calls cost more."""
+
+    old: tuple[float, ...]
+    new: tuple[float, ...]
+    slope: tuple[float, ...]  # len(old) - 1
+
+    def slope_after(self, s: float) -> float:
+        """Slope of the map just after s."""
+        k = bisect_right(self.old, s) - 1
+        return self.slope[k] if 0 <= k < len(self.slope) else 1.0
+
+    def at(self, s: float) -> float:
+        s = float(s)
+        k = bisect_right(self.old, s) - 1
+        if k < 0:
+            start, target, rate = self.old[0], self.new[0], 1.0
+        else:
+            start, target = self.old[k], self.new[k]
+            rate = self.slope[k] if k < len(self.slope) else 1.0
+        return s + (target - start) if rate == 1.0 else target + (s - start) * rate
+
+    def __call__(self, s) -> np.ndarray:
+        return np.array([self.at(value) for value in np.ravel(s)]).reshape(np.shape(s))
+
+    def cuts(self, a: float, b: float) -> list[float]:
+        """Breakpoints strictly inside (a, b) where the slope changes."""
+        found = []
+        for k in range(bisect_right(self.old, a), len(self.old)):
+            if self.old[k] >= b:
+                break
+            before = self.slope[k - 1] if 0 < k <= len(self.slope) else 1.0
+            after = self.slope[k] if k < len(self.slope) else 1.0
+            if before != after:
+                found.append(self.old[k])
+        return found
+
+
+def _stretch_map(geometries, arc: np.ndarray, wrong: np.ndarray) -> SMap:
+    """The map of a road whose geometries ``wrong`` get their arc length ``arc``: each geometry's old range
+    [s, s + @length] (up to the next geometry's start) stretches by arc / @length; any s between the end of a
+    geometry and the next start (a file whose s do not follow from the lengths) only shifts."""
+    old, new, slope = [float(geometries[0].s)], [float(geometries[0].s)], []
+    for k, geometry in enumerate(geometries):
+        start_old, start_new = old[-1], new[-1]
+        following = geometries[k + 1].s if k + 1 < len(geometries) else np.inf
+        used = min(geometry.length, following - geometry.s)
+        rate = arc[k] / geometry.length if wrong[k] else 1.0
+        old.append(start_old + used)
+        new.append(start_new + used * rate)
+        slope.append(rate)
+        if np.isfinite(following) and following > old[-1]:
+            old.append(following)
+            new.append(new[-1] + following - old[-2])
+            slope.append(1.0)
+    return SMap(tuple(old), tuple(new), tuple(slope))
+
+
+def _stretched(road, arc: np.ndarray, wrong: np.ndarray):
+    """The road with every wrong @length set to the arc length and everything along s mapped by the stretch."""
+    geometries = road.reference_line.geometries
+    mapping = _stretch_map(geometries, arc, wrong)
+    at = mapping.at
+    new_geometries = []
+    for k, geometry in enumerate(geometries):
+        changes = {"s": at(geometry.s)}
+        if wrong[k]:
+            changes["length"] = float(arc[k])
+            if geometry.params[8] < 0.5 and geometry.length > 0:  # pRange arcLength: p runs to @length
+                changes["params"] = _rescaled_arc_length_params(geometry.params, geometry.length / arc[k])
+        new_geometries.append(replace(geometry, **changes))
+    length = at(road.length)
+
+    def profile(p: CubicProfile, end: float) -> CubicProfile:
+        return _mapped_profile(p, mapping, end)
+
+    def lane(item, section_end: float):
+        return replace(item, widths=profile(item.widths, section_end), borders=profile(item.borders, section_end),
+                       heights=tuple(replace(h, s0=at(h.s0)) for h in item.heights),
+                       road_marks=tuple(replace(m, s_offset=at(m.s_offset)) for m in item.road_marks),
+                       records=tuple(replace(r, s0=at(r.s0)) for r in item.records))
+
+    sections = tuple(
+        replace(section, s0=at(section.s0),
+                lanes=tuple(lane(item, road.section_end(k)) for item in section.lanes))
+        for k, section in enumerate(road.lane_sections))
+    return replace(
+        road, length=length, reference_line=ReferenceLine(tuple(new_geometries)), lane_sections=sections,
+        types=tuple(replace(t, s0=at(t.s0)) for t in road.types),
+        elevation=profile(road.elevation, road.length), superelevation=profile(road.superelevation, road.length),
+        lane_offset=profile(road.lane_offset, road.length),
+        shape=tuple(replace(x, s0=at(x.s0)) for x in road.shape),
+        objects=tuple(_mapped_object(o, at) for o in road.objects),
+        signals=tuple(replace(x, s=at(x.s)) for x in road.signals),
+        signal_references=tuple(replace(x, s=at(x.s)) for x in road.signal_references),
+        attrib={**road.attrib, "length": repr(length)},
+    )
+
+
+def _rescaled_arc_length_params(params: tuple, ratio: float) -> tuple:
+    """paramPoly3 coefficients for p' = p / ratio: with pRange arcLength p runs to @length, so a new @length
+    must not extend the curve; u(p) = u'(p') with b' = b ratio, c' = c ratio^2, d' = d ratio^3."""
+    aU, bU, cU, dU, aV, bV, cV, dV, normalized = params
+    r2, r3 = ratio * ratio, ratio * ratio * ratio
+    return (aU, bU * ratio, cU * r2, dU * r3, aV, bV * ratio, cV * r2, dV * r3, normalized)
+
+
+def _mapped_profile(p: CubicProfile, mapping: SMap, end: float) -> CubicProfile:
+    """A cubic profile in the new s: each record, over [its s0, the next record's s0 or ``end``), is cut where
+    the stretch changes (unless it is constant) and every piece re-expanded about its own start, so that the
+    new profile at map(s) is the old one at s (exactly, up to rounding)."""
+    if not len(p):
+        return p
+    s0, coefficients = p.s0, p.coefficients
+    stops = np.append(s0[1:], max(end, s0[-1]))
+    new_s0, new_coefficients = [], []
+    for start, stop, (a, b, c, d) in zip(s0.tolist(), stops.tolist(), coefficients.tolist()):
+        pieces = [start] if b == c == d == 0.0 else [start, *mapping.cuts(start, stop)]
+        for origin in pieces:
+            rate = mapping.slope_after(origin)
+            x = origin - start  # the old polynomial's argument where the piece begins
+            value = a + x * (b + x * (c + x * d))
+            first = (b + x * (2.0 * c + 3.0 * d * x)) / rate
+            second = (c + 3.0 * d * x) / rate ** 2
+            third = d / rate ** 3
+            new_s0.append(mapping.at(origin))
+            new_coefficients.append((value, first, second, third))
+    return replace(p, s0=np.array(new_s0), coefficients=np.array(new_coefficients, dtype=float).reshape(-1, 4))
+
+
+def _mapped_object(o, at):
+    """An object at its new s; a repeat keeps covering the same stretch of road (start and end mapped)."""
+
+    def repeat(item):
+        start, stop = at(item.s), at(item.s + item.length)
+        attrib = dict(item.attrib)
+        if "s" in attrib:
+            attrib["s"] = repr(start)
+        if "length" in attrib and stop - start != item.length:
+            attrib["length"] = repr(stop - start)
+        return replace(item, s=start, length=stop - start, attrib=attrib)
+
+    def outline(item):
+        corners = tuple(replace(c, a=at(c.a), attrib={**c.attrib, "s": repr(at(c.a))} if "s" in c.attrib
+                                else c.attrib) if c.kind == "cornerRoad" else c for c in item.corners)
+        return replace(item, corners=corners)
+
+    return replace(o, s=at(o.s), repeats=tuple(repeat(r) for r in o.repeats),
+                   outlines=tuple(outline(x) for x in o.outlines))
