@@ -36,7 +36,8 @@ class Repair:
 
     def __str__(self) -> str:
         where = f"line {self.line}: " if self.line else ""
-        return f"{where}road {self.road}: {self.detail}"
+        who = f"road {self.road}: " if self.road else ""  # a repair of a controller or junction names no road
+        return f"{where}{who}{self.detail}"
 
 
 def outlying_margin(extent: Extent) -> float:

@@ -26,16 +26,19 @@ def _section_at(road, contact: str):
 
 
 @rule("topology.duplicate-id", ERROR,
-      summary="Road ids are unique, and so are junction ids.",
-      why="Links name roads and junctions by id; with two candidates every reader picks one, differently.")
+      summary="Road ids are unique, and so are junction ids and controller ids.",
+      why="Links name roads, junctions and controllers by id; with two candidates every reader picks one, "
+          "differently (the ASAM schema rejects the file). SUMO netconvert writes a joined traffic light's "
+          "controller once per junction it controls.")
 def duplicate_ids(ctx, rule):
-    for kind, items in (("road", ctx.odr.roads), ("junction", ctx.odr.junctions)):
+    for kind, items in (("road", ctx.odr.roads), ("junction", ctx.odr.junctions),
+                        ("controller", ctx.odr.controllers)):
         counts = Counter(item.id for item in items)
         seen = set()
         for item in items:
             if counts[item.id] > 1 and item.id in seen:
                 yield Hit(f"{kind} id {item.id!r} is used {counts[item.id]} times",
-                          road=item.id if kind == "road" else None, line=item.line)
+                          road=item.id if kind == "road" else None, line=getattr(item, "line", None))
             seen.add(item.id)
 
 

@@ -27,8 +27,8 @@ from tavf_mapkit.pipeline.stages import Stage, StageOutput, register_stage
 class OpenDriveStage(Stage):
     inputs = ("xodr",)
     # 2: an OpenDRIVE input becomes the build's NAME.xodr; 3: netconvert's output repaired; 4: @length set to the
-    # arc length, [opendrive] repair
-    version = "4"
+    # arc length, [opendrive] repair; 5: connecting roads meet their lanes, one <controller> per id
+    version = "5"
     description = "read and check the OpenDRIVE (counts, bounds, georeference plausibility)"
 
     def options(self, context: BuildContext) -> dict:
@@ -85,6 +85,8 @@ def _repair_steps(context: BuildContext) -> list:
     and returns (map, [Repair]). The first makes a build possible at all and runs even with --no-repair; the
     others make the file one that every reader reads alike. A new repair is one more entry, in its own module."""
     from tavf_mapkit.opendrive.repair import repair_untrusted_geometry
+    from tavf_mapkit.opendrive.repair_contacts import repair_contacts
+    from tavf_mapkit.opendrive.repair_controllers import repair_controllers
     from tavf_mapkit.opendrive.repair_lengths import repair_geometry_lengths
 
     extent = _network_extent(context)
@@ -92,6 +94,8 @@ def _repair_steps(context: BuildContext) -> list:
     if repair_enabled(context):
         steps += [
             repair_geometry_lengths,  # @length = arc length; everything along s moved with it
+            repair_contacts,  # connecting roads meet the lanes they link (or their link goes)
+            repair_controllers,  # one <controller> per id
         ]
     return steps
 
