@@ -147,31 +147,34 @@ def _arc(params, length, ds, geometry=None):
 _GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(16)
 
 
-def _panel_count(phase_change: np.ndarray) -> int:
-    """Panels so that the integrand's phase changes by at most ~1.5 rad per 16-point panel (exact in double)."""
-    if not phase_change.size:
-        return 1
-    return int(min(256, max(1, np.ceil(np.max(np.abs(phase_change)) / 1.5))))
+def _panel_count(phase_change: np.ndarray) -> np.ndarray:
+    """Panels per row so that the integrand's phase changes by at most ~1.5 rad per 16-point panel (exact in
+    double). Per row, so that a sample's value never depends on the other samples evaluated with it."""
+    return np.clip(np.ceil(np.abs(phase_change) / 1.5), 1, 256).astype(np.int64)
 
 
 def _integrate(func, upper: np.ndarray, panels: int) -> np.ndarray:
-    """Integral of func(t) (vectorised over rows) from 0 to upper[i], composite Gauss-Legendre."""
+    """Integral of func(t) (vectorised over rows) from 0 to upper[i], composite Gauss-Legendre. The weighted
+    sum is numpy's row sum, not a BLAS product: BLAS rounds a row differently by where it sits in the matrix."""
     edges = np.linspace(0.0, 1.0, panels + 1)
     lo, hi = edges[:-1], edges[1:]
     nodes = (0.5 * (hi - lo)[:, None] * (_GL_NODES[None, :] + 1.0) + lo[:, None]).ravel()
     weights = (0.5 * (hi - lo)[:, None] * _GL_WEIGHTS[None, :]).ravel()
     t = upper[:, None] * nodes[None, :]
-    return func(t) @ weights * upper
+    return (func(t) * weights).sum(axis=1) * upper
 
 
 def _spiral(params, length, ds, geometry=None):
     c0 = params[:, 0]
     rate = np.divide(params[:, 1] - params[:, 0], length, out=np.zeros_like(length), where=length > 0)
     theta = c0 * ds + 0.5 * rate * ds * ds
-    panels = _panel_count(np.abs(c0) * np.abs(ds) + 0.5 * np.abs(rate) * ds * ds)
-    c0c, ratec = c0[:, None], rate[:, None]
-    u = _integrate(lambda t: np.cos(c0c * t + 0.5 * ratec * t * t), ds, panels)
-    v = _integrate(lambda t: np.sin(c0c * t + 0.5 * ratec * t * t), ds, panels)
+    need = _panel_count(np.abs(c0) * np.abs(ds) + 0.5 * np.abs(rate) * ds * ds)
+    u, v = np.empty(len(ds)), np.empty(len(ds))
+    for panels in np.unique(need).tolist():
+        rows = np.flatnonzero(need == panels)
+        c0c, ratec = c0[rows, None], rate[rows, None]
+        u[rows] = _integrate(lambda t: np.cos(c0c * t + 0.5 * ratec * t * t), ds[rows], panels)
+        v[rows] = _integrate(lambda t: np.sin(c0c * t + 0.5 * ratec * t * t), ds[rows], panels)
     return u, v, theta, c0 + rate * ds
 
 
@@ -200,7 +203,7 @@ def _arc_length_inverse(speed, p_end: np.ndarray, target: np.ndarray, row: np.nd
     for _ in range(4):
         h = 0.5 * (p - p0)
         local_nodes = p0[:, None] + h[:, None] * (_LOCAL_NODES[None, :] + 1.0)
-        length = a0 + (speed(row[:, None], local_nodes) @ _LOCAL_WEIGHTS) * h
+        length = a0 + (speed(row[:, None], local_nodes) * _LOCAL_WEIGHTS).sum(axis=1) * h  # no BLAS: see _integrate
         p = p - (length - target) / np.maximum(speed(row, p), 1e-12)
     return p
 
