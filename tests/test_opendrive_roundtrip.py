@@ -65,10 +65,14 @@ def test_geo_reference_can_be_rewritten(tmp_path):
 
 
 @pytest.mark.slow
-def test_consecutive_geometries_of_netconvert_output_meet(tavf_xodr_loaded, tavf_xodr):
-    """Every planView joint of netconvert's TAVF file: the end of a geometry, evaluated by us, is the start of
-    the next within 1 mm. Headings agree within 1 mrad except where the file itself kinks, and those joints
-    are exactly the ones ``mapkit validate`` reports as geometry.kink (an independent code path)."""
+def test_consecutive_geometries_of_netconvert_output_meet(tavf_xodr_loaded, tmp_path):
+    """Every planView joint of netconvert's TAVF file: the end of a geometry's curve, evaluated by us at its true
+    arc length, is the start of the next within 1 mm. Read at @length instead (s is arc length), a paramPoly3
+    that is longer than its @length stops short by exactly that much. Headings agree within 1 mrad except where
+    the file itself kinks, and those joints are exactly the ones ``mapkit validate`` reports as geometry.kink
+    after the lengths are repaired (an independent code path)."""
+    from tavf_mapkit.opendrive.repair_lengths import repair_geometry_lengths, true_lengths
+    from tavf_mapkit.opendrive.writer import write_opendrive
     from tavf_mapkit.validate import validate_file
 
     kinks = set()
@@ -77,14 +81,25 @@ def test_consecutive_geometries_of_netconvert_output_meet(tavf_xodr_loaded, tavf
         if len(geometries) < 2:
             continue
         k = np.arange(len(geometries) - 1)
-        x, y, hdg, _ = road.reference_line.table.evaluate(k, np.array([g.length for g in geometries[:-1]]))
+        table = road.reference_line.table
+        arc = true_lengths(table)[k]
         following = geometries[1:]
-        gap = np.hypot(x - [g.x for g in following], y - [g.y for g in following])
+        start = np.column_stack([[g.x for g in following], [g.y for g in following]])
+        x, y, hdg, _ = table.evaluate(k, arc)
+        gap = np.hypot(x - start[:, 0], y - start[:, 1])
         assert gap.max() < 1e-3, (road.id, gap.max())
+        x, y, _, _ = table.evaluate(k, table.length[k])
+        short = np.hypot(x - start[:, 0], y - start[:, 1])
+        np.testing.assert_allclose(short, np.maximum(arc - table.length[k], 0.0), atol=1e-3)
         turn = np.abs((hdg - [g.hdg for g in following] + np.pi) % (2 * np.pi) - np.pi)
-        kinks |= {(road.id, round(following[i].s, 3)) for i in np.flatnonzero(turn > 1e-3)}
-    reported = validate_file(tavf_xodr, rules=["geometry.kink"]).findings
-    assert kinks == {(f.road, round(f.s, 3)) for f in reported}
+        kinks |= {(road.id, int(i) + 1) for i in np.flatnonzero(turn > 1e-3)}  # (road, geometry after it)
+    repaired, _ = repair_geometry_lengths(tavf_xodr_loaded)
+    write_opendrive(repaired, tmp_path / "lengths.xodr")
+    reported = set()
+    for finding in validate_file(tmp_path / "lengths.xodr", rules=["geometry.kink"]).findings:
+        starts = [g.s for g in repaired.road_by_id[finding.road].reference_line.geometries]
+        reported.add((finding.road, int(np.argmin(np.abs(np.array(starts) - finding.s)))))
+    assert kinks == reported
     assert len(kinks) <= 2  # netconvert 1.28 writes one on DLR's TAVF network
 
 

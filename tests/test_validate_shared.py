@@ -13,7 +13,7 @@ GEOREFERENCE_CONTRADICTION = {"georeference.plausible": 3}
 EXPECTED_ERRORS = {
     ("esmini", "crest-curve.xodr"): {},
     ("esmini", "curves_elevation.xodr"): {},
-    ("esmini", "e6mini.xodr"): GEOREFERENCE_CONTRADICTION,
+    ("esmini", "e6mini.xodr"): {**GEOREFERENCE_CONTRADICTION, "geometry.gap": 1},
     ("esmini", "fabriksgatan.xodr"): {},
     ("esmini", "jolengatan.xodr"): {},
     ("esmini", "multi_intersections.xodr"): {},
@@ -41,6 +41,9 @@ def test_reference_files_have_only_the_explained_errors(shared, folder, name):
 def test_explained_errors_are_where_the_docs_say(shared):
     [gap] = validate_file(shared("xodr", "libopendrive", "test.xodr")).by_rule("geometry.gap")
     assert gap.road == "346" and "0.001013 m" in gap.message
+    # s is arc length: a paramPoly3 1.6 mm longer than its @length ends 1.6 mm before the next geometry starts
+    [gap] = validate_file(shared("xodr", "esmini", "e6mini.xodr")).by_rule("geometry.gap")
+    assert gap.road == "0" and gap.s == pytest.approx(513.789, abs=1e-3) and "0.001616 m longer" in gap.message
     [contact] = validate_file(shared("xodr", "esmini", "soderleden.xodr")).by_rule("topology.contact-gap")
     assert contact.road == "7" and "road 2" in contact.message and "66.3 m" in contact.message
 
@@ -59,8 +62,23 @@ def _check_netconvert_invariants(path):
 
 
 @pytest.mark.slow
-def test_netconvert_tavf_file(tavf_xodr):
-    report = _check_netconvert_invariants(tavf_xodr)
+def test_netconvert_tavf_file(tavf_xodr, tmp_path):
+    """Read as the standard says (s = arc length), netconvert's paramPoly3 curves that are longer than their
+    @length end early: every geometry.gap is exactly that shortfall, and once the lengths are repaired (as a
+    build does) the file has only netconvert's junction defects."""
+    from tavf_mapkit.opendrive.repair_lengths import repair_geometry_lengths
+    from tavf_mapkit.opendrive.writer import write_opendrive
+
+    raw = validate_file(tavf_xodr, rules=["geometry.gap"])
+    assert raw.findings
+    for finding in raw.findings:
+        gap, shortfall = re.search(r"starts ([\d.e-]+) m .* paramPoly3 before it is ([\d.e-]+) m longer",
+                                   finding.message).groups()
+        assert float(gap) == pytest.approx(float(shortfall), abs=1e-6), finding.message
+    repaired, _ = repair_geometry_lengths(load_opendrive(tavf_xodr))
+    write_opendrive(repaired, tmp_path / "lengths.xodr")
+    report = _check_netconvert_invariants(tmp_path / "lengths.xodr")
+    assert not report.by_rule("geometry.param-poly3-length")
     dangling = report.by_rule("topology.dead-end-junction-link")
     assert len(dangling) == 40 and all(f.severity == "warning" for f in dangling)
     assert not report.by_rule("topology.missing-junction")

@@ -113,7 +113,7 @@ class SMap:
         else:
             start, target = self.old[k], self.new[k]
             rate = self.slope[k] if k < len(self.slope) else 1.0
-        return s + (target - start) if rate == 1.0 else target + (s - start) * rate
+        return float(s + (target - start) if rate == 1.0 else target + (s - start) * rate)
 
     def __call__(self, s) -> np.ndarray:
         return np.array([self.at(value) for value in np.ravel(s)]).reshape(np.shape(s))
@@ -139,8 +139,8 @@ def _stretch_map(geometries, arc: np.ndarray, wrong: np.ndarray) -> SMap:
     for k, geometry in enumerate(geometries):
         start_old, start_new = old[-1], new[-1]
         following = geometries[k + 1].s if k + 1 < len(geometries) else np.inf
-        used = min(geometry.length, following - geometry.s)
-        rate = arc[k] / geometry.length if wrong[k] else 1.0
+        used = float(min(geometry.length, following - geometry.s))
+        rate = float(arc[k] / geometry.length) if wrong[k] else 1.0
         old.append(start_old + used)
         new.append(start_new + used * rate)
         slope.append(rate)

@@ -42,10 +42,23 @@ def gap(ctx, rule):
     table, first, x, y, _ = _joints(ctx)
     distance = np.hypot(table.x[first + 1] - x, table.y[first + 1] - y)
     geometries = _flat_geometries(ctx.odr)
-    for k in np.flatnonzero(distance > rule.tolerance):
+    gaps = np.flatnonzero(distance > rule.tolerance)
+    short = _param_poly3_shortfall(table, first[gaps])
+    for k, missing in zip(gaps, short):
         road, geometry = geometries[first[k] + 1]
-        yield Hit(f"geometry at s={geometry.s:g} starts {distance[k]:.4g} m from where the previous one ends",
+        why = (f" (the paramPoly3 before it is {missing:.4g} m longer than its @length, and s is arc length)"
+               if missing > rule.tolerance else "")
+        yield Hit(f"geometry at s={geometry.s:g} starts {distance[k]:.4g} m from where the previous one ends{why}",
                   road=road.id, s=geometry.s, line=geometry.line)
+
+
+def _param_poly3_shortfall(table, rows: np.ndarray) -> np.ndarray:
+    """Per geometry row: how much longer a paramPoly3's curve is than its @length (0 for other kinds)."""
+    shortfall = np.zeros(len(rows))
+    curves = np.flatnonzero(table.kind[rows] == int(GeometryKind.PARAM_POLY3))
+    if len(curves):
+        shortfall[curves] = param_poly3_arc_lengths(table, rows[curves]) - table.length[rows[curves]]
+    return shortfall
 
 
 @rule("geometry.kink", WARNING, tolerance=0.1, unit="deg",
@@ -104,8 +117,9 @@ def param_poly3_arc_lengths(table, rows: np.ndarray) -> np.ndarray:
 
 @rule("geometry.param-poly3-length", WARNING, tolerance=0.01, unit="m",
       summary="A paramPoly3's true arc length equals its @length.",
-      why="s along the road is arc length; readers that trust @length (most do) misplace everything after it, "
-          "and consecutive geometries stop joining.")
+      why="s along the road is arc length: read so (CARLA, libOpenDRIVE and we do), a curve longer than its @length "
+          "ends early and leaves a gap before the next geometry or road, a shorter one stands still at its end; "
+          "readers that spread @length over the curve place its lanes differently.")
 def param_poly3_length(ctx, rule):
     table = ctx.odr.arrays.geometries
     rows = np.flatnonzero(table.kind == int(GeometryKind.PARAM_POLY3))
@@ -116,8 +130,11 @@ def param_poly3_length(ctx, rule):
     geometries = _flat_geometries(ctx.odr)
     for k in np.flatnonzero(np.abs(difference) > rule.tolerance):
         road, geometry = geometries[rows[k]]
+        effect = (f"s ends {difference[k]:.4g} m before the curve does, a gap at its end" if difference[k] > 0 else
+                  f"s runs {-difference[k]:.4g} m past the curve's end, where the reference line stands still")
         yield Hit(f"paramPoly3 at s={geometry.s:g} is {true_length[k]:.6g} m long, @length says "
-                  f"{geometry.length:.6g} ({difference[k]:+.4g} m)", road=road.id, s=geometry.s, line=geometry.line)
+                  f"{geometry.length:.6g} ({difference[k]:+.4g} m): {effect}", road=road.id, s=geometry.s,
+                  line=geometry.line)
 
 
 @rule("geometry.negative-width", ERROR, tolerance=0.001, unit="m",
