@@ -43,6 +43,10 @@ def test_carla_defaults_and_actuator_limits():
     assert throttle.tolist() == [0.75, 0.0, 0.2] and brake.tolist() == [0.0, 0.3, 0.0]
     assert limit_steering(np.array([1.0]), np.array([0.0]), CARLA_LIMITS)[0] == pytest.approx(0.1)
     assert limit_steering(np.array([1.0]), np.array([0.75]), CARLA_LIMITS)[0] == pytest.approx(0.8)
+    # below junction speed the local planner lets the wheel go to full lock (per vehicle), at the same rate
+    full = limit_steering(np.array([1.0, 1.0, -1.0]), np.array([0.75, 0.95, -0.95]), CARLA_LIMITS,
+                          np.array([0.8, 1.0, 1.0]))
+    assert full == pytest.approx([0.8, 1.0, -1.0])
     # the longitudinal error is in km/h as in CARLA: 1 m/s short of the target saturates K_P=1
     assert longitudinal(np.array([10.0]), np.array([11.0]))[0] == 1.0
 

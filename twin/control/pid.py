@@ -108,6 +108,9 @@ def split_acceleration(acceleration: np.ndarray, limits: ActuatorLimits) -> tupl
     return throttle, brake
 
 
-def limit_steering(steer: np.ndarray, previous: np.ndarray, limits: ActuatorLimits) -> np.ndarray:
+def limit_steering(steer: np.ndarray, previous: np.ndarray, limits: ActuatorLimits,
+                   max_steering: np.ndarray | float | None = None) -> np.ndarray:
+    """Steering within the limits' rate, and within +-``max_steering`` (default: the limits' own)."""
+    bound = limits.max_steering if max_steering is None else max_steering
     steer = np.clip(steer, previous - limits.max_steer_change, previous + limits.max_steer_change)
-    return np.clip(steer, -limits.max_steering, limits.max_steering)
+    return np.clip(steer, -bound, bound)

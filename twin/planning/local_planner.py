@@ -3,7 +3,8 @@
 Target point: the path point ``controller.lookahead(speed)`` metres ahead of the projection (CARLA picks
 the first waypoint further than 3 m + 0.5 s x speed). Target speed: the route's speed (limit, recording or
 ``--speed``), capped so every tighter bend and the route's end ahead can be reached braking at ``decel``,
-and by any cap the session passes (hooks: red lights, leaders).
+and by any cap the session passes (hooks: red lights, leaders). Steering: the limits' rate and range, except
+that below ``FULL_LOCK_SPEED`` the wheel may turn to full lock.
 """
 
 from __future__ import annotations
@@ -25,6 +26,9 @@ class ControlOutput:
     brake: np.ndarray
     target_speed: np.ndarray
     projection: Projection
+
+
+FULL_LOCK_SPEED = 5.0  # m/s (18 km/h): below it the steering may go past max_steering to full lock
 
 
 class LocalPlanner:
@@ -52,7 +56,10 @@ class LocalPlanner:
             target_speed = np.minimum(target_speed, speed_cap)
         tx, ty = buffer.point_at(projection.s + self.lateral.lookahead(speed))
         steer = self.lateral.steer(state.x, state.y, state.yaw, speed, tx, ty, self.params)
-        steer = limit_steering(steer, self.previous_steer, self.limits)
+        # at junction speed a driver turns the wheel to full lock: CARLA's 0.8 limit (a 5.6 m radius) made the
+        # car swing out of 100-125 degree junction turns onto the curb; the full 35 degrees turn it in 4.2 m
+        bound = np.where(speed < FULL_LOCK_SPEED, 1.0, self.limits.max_steering)
+        steer = limit_steering(steer, self.previous_steer, self.limits, bound)
         self.previous_steer = steer
         throttle, brake = split_acceleration(self.longitudinal(speed, target_speed), self.limits)
         # hold a stopped car with the full brake, as a driver would at the end of a route

@@ -1,9 +1,9 @@
 """Random routes that always make progress: a walk through the lane graph that never stalls and never loops.
 
 Lanes and steps between them: those a car can drive in lane (``twin.planning.drivable``: no U-turns, no
-bend the car would cut by more than a metre, measured on lanes and on the joins between them); sub-metre
-lanes, which add no points to a path, are stepped over. Lane changes are part of the walk, because on real
-networks turn lanes often make the follow-only graph fall apart.
+bend the car would cut by more than half a metre, measured on lanes and on the joins between them);
+sub-metre lanes, which add no points to a path, are stepped over. Lane changes are part of the walk,
+because on real networks turn lanes often make the follow-only graph fall apart.
 
 Where the walk goes, in order of preference:
 
