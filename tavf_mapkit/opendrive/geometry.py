@@ -182,19 +182,26 @@ _TABLE_PANELS = 16
 _LOCAL_NODES, _LOCAL_WEIGHTS = np.polynomial.legendre.leggauss(10)
 
 
-def _arc_length_inverse(speed, p_end: np.ndarray, target: np.ndarray, row: np.ndarray) -> np.ndarray:
-    """p with arc_length(0..p) = target for each sample of a curve with |c'(p)| = speed(rows, p).
-
-    Per curve an arc-length table at 16 panel edges (16-node Gauss-Legendre per panel), then per sample a
-    few Newton steps from the panel edge with a 10-node rule: exact to ~1e-12 m, ~30 speed evaluations.
-    ``row`` maps each sample to its curve (index into p_end).
-    """
+def _arc_length_table(speed, p_end: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(edges, table): per curve with |c'(p)| = speed(rows, p), 16 panel edges over [0, p_end] and the arc length
+    up to each (16-node Gauss-Legendre per panel); ``table[:, -1]`` is the curve's length."""
     edges = np.linspace(0.0, 1.0, _TABLE_PANELS + 1)[None, :] * p_end[:, None]  # (curves, panels+1)
     half = 0.5 * (edges[:, 1:] - edges[:, :-1])
     nodes = edges[:, :-1, None] + half[:, :, None] * (_GL_NODES[None, None, :] + 1.0)
     curves = np.arange(len(p_end))
     panel_lengths = (speed(curves[:, None, None], nodes) * _GL_WEIGHTS[None, None, :]).sum(axis=2) * half
-    table = np.concatenate([np.zeros((len(p_end), 1)), np.cumsum(panel_lengths, axis=1)], axis=1)
+    return edges, np.concatenate([np.zeros((len(p_end), 1)), np.cumsum(panel_lengths, axis=1)], axis=1)
+
+
+def _arc_length_inverse(speed, p_end: np.ndarray, target: np.ndarray, row: np.ndarray,
+                        table: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """p with arc_length(0..p) = target for each sample of a curve with |c'(p)| = speed(rows, p).
+
+    Per curve an arc-length table at 16 panel edges (``_arc_length_table``, or the one given), then per sample
+    a few Newton steps from the panel edge with a 10-node rule: exact to ~1e-12 m, ~30 speed evaluations.
+    ``row`` maps each sample to its curve (index into p_end).
+    """
+    edges, table = _arc_length_table(speed, p_end) if table is None else table
     k = np.clip((table[row, 1:] <= target[:, None]).sum(axis=1), 0, _TABLE_PANELS - 1)
     a0, a1 = table[row, k], table[row, k + 1]
     p0, p1 = edges[row, k], edges[row, k + 1]
@@ -244,8 +251,9 @@ def _param_poly3(params, length, ds, geometry=None):
         dv = gu[r, 5] + p * (2 * gu[r, 6] + 3 * gu[r, 7] * p)
         return np.hypot(du, dv)
 
-    total = param_poly3_length(gu, g_end)
-    p = _arc_length_inverse(speed, g_end, np.minimum(ds, total[row]), row)
+    table = _arc_length_table(speed, g_end)
+    total = table[1][:, -1]
+    p = _arc_length_inverse(speed, g_end, np.minimum(ds, total[row]), row, table)
     p = np.where(ds < total[row], p, g_end[row])  # at and past the curve's end: exactly its end
     u = aU + p * (bU + p * (cU + p * dU))
     v = aV + p * (bV + p * (cV + p * dV))
@@ -266,16 +274,7 @@ def param_poly3_length(params: np.ndarray, p_end: np.ndarray) -> np.ndarray:
         dv = params[r, 5] + p * (2 * params[r, 6] + 3 * params[r, 7] * p)
         return np.hypot(du, dv)
 
-    return _arc_length_inverse_total(speed, np.asarray(p_end, dtype=float))
-
-
-def _arc_length_inverse_total(speed, p_end: np.ndarray) -> np.ndarray:
-    """Total arc length of each curve over [0, p_end] (16 panels x 16 Gauss-Legendre nodes)."""
-    edges = np.linspace(0.0, 1.0, _TABLE_PANELS + 1)[None, :] * p_end[:, None]
-    half = 0.5 * (edges[:, 1:] - edges[:, :-1])
-    nodes = edges[:, :-1, None] + half[:, :, None] * (_GL_NODES[None, None, :] + 1.0)
-    curves = np.arange(len(p_end))
-    return ((speed(curves[:, None, None], nodes) * _GL_WEIGHTS[None, None, :]).sum(axis=2) * half).sum(axis=1)
+    return _arc_length_table(speed, np.asarray(p_end, dtype=float))[1][:, -1]
 
 
 _KERNELS = {
