@@ -48,12 +48,14 @@ def test_explained_errors_are_where_the_docs_say(shared):
     assert contact.road == "7" and "road 2" in contact.message and "66.3 m" in contact.message
 
 
-def _check_netconvert_invariants(path):
-    """netconvert's defects are all inside junctions: plain roads join exactly, length errors are 0.1 m stubs."""
+def _check_netconvert_invariants(path, controllers_repaired: bool = True):
+    """netconvert's defects are all inside junctions: plain roads join exactly, length errors are 0.1 m stubs
+    (and, unless repaired, junction controller ids are written twice)."""
     odr = load_opendrive(path)
     report = validate_file(path)
-    allowed = {"geometry.length", "topology.contact-gap"}
+    allowed = {"geometry.length", "topology.contact-gap"} | (set() if controllers_repaired else {"topology.duplicate-id"})
     assert set(error_counts(report)) <= allowed, report.format_text()
+    assert all(f.message.startswith("controller id ") for f in report.by_rule("topology.duplicate-id"))
     assert all(odr.road_by_id[f.road].length <= 0.1 + 1e-9 for f in report.by_rule("geometry.length"))
     for finding in report.by_rule("topology.contact-gap") + report.by_rule("topology.contact-heading"):
         assert odr.road_by_id[finding.road].in_junction, finding
@@ -77,7 +79,7 @@ def test_netconvert_tavf_file(tavf_xodr, tmp_path):
         assert float(gap) == pytest.approx(float(shortfall), abs=1e-6), finding.message
     repaired, _ = repair_geometry_lengths(load_opendrive(tavf_xodr))
     write_opendrive(repaired, tmp_path / "lengths.xodr")
-    report = _check_netconvert_invariants(tmp_path / "lengths.xodr")
+    report = _check_netconvert_invariants(tmp_path / "lengths.xodr", controllers_repaired=False)
     assert not report.by_rule("geometry.param-poly3-length")
     dangling = report.by_rule("topology.dead-end-junction-link")
     assert len(dangling) == 40 and all(f.severity == "warning" for f in dangling)

@@ -169,27 +169,37 @@ def _stretched(road, arc: np.ndarray, wrong: np.ndarray):
     def profile(p: CubicProfile, end: float) -> CubicProfile:
         return _mapped_profile(p, mapping, end)
 
+    def moved(items, name: str = "s0") -> tuple:
+        return tuple(_moved(item, name, at) for item in items)
+
     def lane(item, section_end: float):
-        return replace(item, widths=profile(item.widths, section_end), borders=profile(item.borders, section_end),
-                       heights=tuple(replace(h, s0=at(h.s0)) for h in item.heights),
-                       road_marks=tuple(replace(m, s_offset=at(m.s_offset)) for m in item.road_marks),
-                       records=tuple(replace(r, s0=at(r.s0)) for r in item.records))
+        changes = {"widths": profile(item.widths, section_end), "borders": profile(item.borders, section_end),
+                   "heights": moved(item.heights), "road_marks": moved(item.road_marks, "s_offset"),
+                   "records": moved(item.records)}
+        if all(value is getattr(item, key) or value == getattr(item, key) for key, value in changes.items()):
+            return item  # most lanes start where the road does: nothing of them moves (and replace is slow)
+        return replace(item, **changes)
 
     sections = tuple(
-        replace(section, s0=at(section.s0),
-                lanes=tuple(lane(item, road.section_end(k)) for item in section.lanes))
+        _moved(section, "s0", at, lanes=tuple(lane(item, road.section_end(k)) for item in section.lanes))
         for k, section in enumerate(road.lane_sections))
     return replace(
         road, length=length, reference_line=ReferenceLine(tuple(new_geometries)), lane_sections=sections,
-        types=tuple(replace(t, s0=at(t.s0)) for t in road.types),
-        elevation=profile(road.elevation, road.length), superelevation=profile(road.superelevation, road.length),
-        lane_offset=profile(road.lane_offset, road.length),
-        shape=tuple(replace(x, s0=at(x.s0)) for x in road.shape),
-        objects=tuple(_mapped_object(o, at) for o in road.objects),
-        signals=tuple(replace(x, s=at(x.s)) for x in road.signals),
-        signal_references=tuple(replace(x, s=at(x.s)) for x in road.signal_references),
+        types=moved(road.types), elevation=profile(road.elevation, road.length),
+        superelevation=profile(road.superelevation, road.length), lane_offset=profile(road.lane_offset, road.length),
+        shape=moved(road.shape), objects=tuple(_mapped_object(o, at) for o in road.objects),
+        signals=moved(road.signals, "s"), signal_references=moved(road.signal_references, "s"),
         attrib={**road.attrib, "length": repr(length)},
     )
+
+
+def _moved(item, name: str, at, **more):
+    """``item`` with its s field ``name`` mapped (and ``more`` fields set); the very item if nothing changes."""
+    value = getattr(item, name)
+    new = at(value)
+    if new == value and all(getattr(item, key) is v for key, v in more.items()):
+        return item
+    return replace(item, **{name: new}, **more)
 
 
 def _rescaled_arc_length_params(params: tuple, ratio: float) -> tuple:
@@ -220,7 +230,10 @@ def _mapped_profile(p: CubicProfile, mapping: SMap, end: float) -> CubicProfile:
             third = d / rate ** 3
             new_s0.append(mapping.at(origin))
             new_coefficients.append((value, first, second, third))
-    return replace(p, s0=np.array(new_s0), coefficients=np.array(new_coefficients, dtype=float).reshape(-1, 4))
+    new_s0, new_coefficients = np.array(new_s0), np.array(new_coefficients, dtype=float).reshape(-1, 4)
+    if np.array_equal(new_s0, s0) and np.array_equal(new_coefficients, coefficients):
+        return p
+    return replace(p, s0=new_s0, coefficients=new_coefficients)
 
 
 def _mapped_object(o, at):
