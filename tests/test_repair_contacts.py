@@ -220,8 +220,8 @@ def test_a_link_without_a_sensible_curve_is_dropped_and_named(tmp_path):
     assert [r.action for r in repairs] == [DROPPED_LINK, DROPPED_JUNCTION]
     assert str(repairs[0]) == (
         "line 1: road 3: dropped the link between road 1 and road 2 through lanes -1 (road and junction connection): no "
-        "sensible connecting road, the lanes it joins lie behind one another or side by side facing apart (an "
-        "end heads 180 degrees away from the other end)")
+        "sensible connecting road, the lanes it joins lie behind one another (both ends head 180 degrees or more "
+        "away from the other end)")
     assert str(repairs[1]) == "line 1: dropped junction 9: no connection is left in it"
     assert sorted(repaired.road_by_id) == ["1", "2"] and not repaired.junctions
     assert repaired.road_by_id["1"].successor is None and repaired.road_by_id["2"].predecessor is None

@@ -6,10 +6,10 @@ tangents are as long as those of a circular arc through the same turn (2 tan(the
 chord: 1 for a straight line, 2 for a U-turn), which makes a symmetric turn nearly that arc. @length is the
 curve's true arc length, integrated with the reader's own quadrature, so s along it is arc length.
 
-Where the two poses admit no road -- the target lies behind the start or the start behind the target (the
-curve would leave or arrive heading away from the other end: more than a right angle plus OBLIQUE off the
-chord), the curve reverses (a cusp) or winds far beyond the turn (a loop) -- ``problem`` says so and the
-caller drops the link instead.
+Where the two poses admit no road -- the target lies behind the start and the start behind the target (both
+ends head away from the other: more than a right angle plus OBLIQUE off the chord; a U-turn may end behind its
+start, but it heads towards it at one end), the curve reverses (a cusp) or winds far beyond the turn (a loop)
+-- ``problem`` says so and the caller drops the link instead.
 """
 
 from __future__ import annotations
@@ -26,8 +26,8 @@ from tavf_mapkit.opendrive.geometry import Geometry, GeometryKind, param_poly3_l
 TOUCHING = 1e-3
 #: shortest tangent (m): two poses at one point still get a curve of positive length
 MIN_TANGENT = 1e-3
-#: how much more than a right angle an end's heading may be off the chord (a U-turn is exactly a right angle
-#: off at both ends; one at a skewed road end somewhat more)
+#: how much more than a right angle both ends' headings may be off the chord (a U-turn between lanes that end
+#: side by side is exactly a right angle off at both ends; at a skewed road end one end somewhat more)
 OBLIQUE = math.radians(20.0)
 #: the curve may turn this much further than the net turn (S-bends of lane shifts need some) before it loops
 SPARE_TURN = math.pi
@@ -66,10 +66,10 @@ def hermite_curve(x0: float, y0: float, h0: float, x1: float, y1: float, h1: flo
     problem = None
     if chord >= TOUCHING:
         bearing = math.atan2(qy, qx)  # of the chord, in the start's frame
-        off = max(abs(float(wrap(bearing))), abs(float(wrap(turn - bearing))))
-        if off > math.pi / 2 + OBLIQUE:
-            problem = (f"the lanes it joins lie behind one another or side by side facing apart (an end heads "
-                       f"{math.degrees(off):.0f} degrees away from the other end)")
+        off = min(abs(float(wrap(bearing))), abs(float(wrap(turn - bearing))))
+        if off > math.pi / 2 + OBLIQUE:  # both ends: a U-turn may end behind its start, but it turns to it
+            problem = (f"the lanes it joins lie behind one another (both ends head {math.degrees(off):.0f} "
+                       f"degrees or more away from the other end)")
         else:
             problem = _problem(params, theta)
     return ConnectingCurve(geometry, length, problem)
