@@ -39,8 +39,10 @@ CASES = {
                100, "", ""),
     "poly3": ('<geometry s="0" x="0" y="0" hdg="0" length="80"><poly3 a="0" b="0" c="0.004" d="-4e-5"/></geometry>',
               80, "", ""),
-    "paramPoly3": (('<geometry s="0" x="0" y="0" hdg="0" length="95.5"><paramPoly3 aU="0" bU="90" cU="0" dU="0" '
-                   'aV="0" bV="0" cV="25" dV="-8" pRange="normalized"/></geometry>'), 95.5, "", ""),
+    # @length is the curve's arc length: s is arc length, so a longer @length would stand still at the end
+    "paramPoly3": (('<geometry s="0" x="0" y="0" hdg="0" length="91.90718624256009"><paramPoly3 aU="0" bU="90" '
+                   'cU="0" dU="0" aV="0" bV="0" cV="25" dV="-8" pRange="normalized"/></geometry>'), 91.90718624256009,
+                   "", ""),
     "superelevation": ('<geometry s="0" x="0" y="0" hdg="0" length="120"><arc curvature="0.01"/></geometry>', 120,
                        ELEVATION + SUPER, ""),
     "laneOffset": ('<geometry s="0" x="0" y="0" hdg="0" length="100"><arc curvature="0.015"/></geometry>', 100, "",
