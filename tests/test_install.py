@@ -77,7 +77,7 @@ def test_the_wheel_installs_and_builds_the_sample_from_another_folder(tmp_path):
     assert "built " in result.stdout and "Traceback" not in result.stderr
     folder = elsewhere / "out"
     for relative in ("out.xodr", "out.net.xml", "source/out.osm", "report/summary.json", "report/check.json",
-                     "logs/netconvert.log", "mesh/mesh.json", "mesh/surface.npz", "mesh/solids.npz",
+                     "logs/netconvert.log", "mesh/mesh.json", "mesh/labelled/index.json",
                      "report/mesh_preview.png", "collision/world.json"):
         assert (folder / relative).is_file(), relative
     manifest = json.loads((folder / "manifest.json").read_text())

@@ -54,8 +54,9 @@ def _road_breaks(arrays, group: np.ndarray, s: np.ndarray):
     return section, s
 
 
-def initial_breaks(arrays, max_segment: float):
-    """Sorted unique (section, s) breakpoints of every section with positive length."""
+def initial_breaks(arrays, max_segment: float, only: np.ndarray | None = None):
+    """Sorted unique (section, s) breakpoints of every section with positive length (of the ``only`` sections,
+    section rows, when given: each section's breakpoints depend on that section alone)."""
     sections, values = [], []
     n = len(arrays.section_s0)
     sections += [np.arange(n), np.arange(n)]
@@ -76,6 +77,10 @@ def initial_breaks(arrays, max_segment: float):
         values += [table.s0, table.s0 - HEIGHT_STEP]
     section = np.concatenate(sections).astype(np.int64)
     s = np.concatenate(values).astype(float)
+    if only is not None:
+        wanted = np.zeros(n, dtype=bool)
+        wanted[np.asarray(only, dtype=np.int64)] = True
+        section, s = section[wanted[section]], s[wanted[section]]
     inside = (s >= arrays.section_s0[section]) & (s <= arrays.section_end[section])
     section, s = section[inside], s[inside]
     order = np.lexsort((s, section))
@@ -150,12 +155,14 @@ def segment_deviation(odr, seg_section: np.ndarray, a: np.ndarray, b: np.ndarray
     return out
 
 
-def adaptive_samples(odr, eps: float = 0.05, max_segment: float = 50.0, max_levels: int = 40) -> AdaptiveSamples:
-    """Samples per lane section such that the lane mesh is within ``eps`` of the exact surface."""
+def adaptive_samples(odr, eps: float = 0.05, max_segment: float = 50.0, max_levels: int = 40,
+                     sections: np.ndarray | None = None) -> AdaptiveSamples:
+    """Samples per lane section such that the lane mesh is within ``eps`` of the exact surface (of the given
+    section rows only, when ``sections`` is given; every section's samples are its own)."""
     if not (eps > 0 and np.isfinite(eps)):
         raise ValueError("eps must be a positive number of metres")
     arrays = odr.arrays
-    seg_section, a, b, at_break = initial_breaks(arrays, max_segment)
+    seg_section, a, b, at_break = initial_breaks(arrays, max_segment, sections)
     done = []
     for _ in range(max_levels):
         if not len(a):

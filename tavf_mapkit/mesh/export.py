@@ -20,7 +20,7 @@ import numpy as np
 from tavf_mapkit.fileutil import write_bytes_atomic, write_text_atomic
 from tavf_mapkit.mesh.labelled import KIND_CODE, SURFACE_KINDS, LabelledMesh
 from tavf_mapkit.mesh.materials import mark_material, material_rgba
-from tavf_mapkit.mesh.tiles import Grid, map_origin, tile_name
+from tavf_mapkit.mesh.tiles import Grid, faces_by_tile, map_origin, tile_name
 
 FORMATS = ("glb", "obj")
 AXES = "glTF +Y up: (X, Y, Z) = (x - origin.x, z - origin.z, -(y - origin.y)), metres"
@@ -68,48 +68,22 @@ def from_file_axes(points: np.ndarray, origin) -> np.ndarray:
 def export_meshes(layers: ExportLayers, folder: str | Path, fmt: str = "glb", tile_size: float = 100.0,
                   origin=None, preview: bool = True) -> dict:
     """Write tiles, ``mesh.json`` and ``preview.png`` into ``folder``; return the mesh.json content."""
-    if fmt not in FORMATS:
-        raise ValueError(f"format must be one of {', '.join(FORMATS)}")
-    if not (tile_size > 0 and np.isfinite(tile_size)):
-        raise ValueError("tile size must be a positive number of metres")
+    check_export_options(fmt, tile_size)
     folder = Path(folder)
     (folder / "tiles").mkdir(parents=True, exist_ok=True)
     groups = layers.groups()
     grid = Grid(tuple(origin) if origin is not None else map_origin([g[2] for g in groups]), float(tile_size))
-    # which tile every face of every group falls into
-    per_group_tiles = [grid.tile_of(mesh) for _, _, mesh in groups]
-    all_tiles = np.concatenate(per_group_tiles) if per_group_tiles else np.zeros((0, 2), dtype=np.int64)
-    tiles = [tuple(int(v) for v in row) for row in np.unique(all_tiles, axis=0)] if len(all_tiles) else []
-    tile_entries = []
+    # which tile every face of every group falls into, and the faces of each tile (one sort per group)
+    per_group = [faces_by_tile(grid.tile_of(mesh)) for _, _, mesh in groups]
+    tiles = sorted({tile for by_tile in per_group for tile in by_tile})
     if fmt == "obj":
-        write_text_atomic(folder / "tiles" / "materials.mtl", _mtl([g[1] for g in groups]))
+        write_materials(folder, [g[1] for g in groups])
+    tile_entries = []
     for index in tiles:
-        members = []
-        counts = {"lanes": 0, "marks": 0, "solids": 0}
-        for (layer, material, mesh), face_tiles in zip(groups, per_group_tiles):
-            mask = (face_tiles[:, 0] == index[0]) & (face_tiles[:, 1] == index[1])
-            if np.any(mask):
-                part = mesh.select(mask)
-                members.append((layer, material, part))
-                counts[layer] += len(part.faces)
-        name = tile_name(index)
-        relative = f"tiles/{name}.{fmt}"
-        data = _glb(members, grid.origin) if fmt == "glb" else _obj(members, grid.origin).encode("utf-8")
-        write_bytes_atomic(folder / relative, data)
-        tile_entries.append({"file": relative, "index": list(index), "bounds": grid.tile_bounds(index),
-                             "triangles": counts,
-                             "materials": sorted({material for _, material, _ in members})})
-    summary = {
-        "format": fmt,
-        "origin": {"x": grid.origin[0], "y": grid.origin[1], "z": grid.origin[2]},
-        "axes": AXES if fmt == "glb" else AXES.replace("glTF", "OBJ"),
-        "tile_size": grid.size,
-        "tiles": tile_entries,
-        "triangles": triangle_counts(layers),
-        "materials": {material: [round(c, 4) for c in material_rgba(material)] for material in
-                      sorted({g[1] for g in groups})},
-        **layers.extra,
-    }
+        members = [(layer, material, mesh.select(by_tile[index]))
+                   for (layer, material, mesh), by_tile in zip(groups, per_group) if index in by_tile]
+        tile_entries.append(write_tile(folder, fmt, grid, index, members))
+    summary = mesh_summary(fmt, grid, tile_entries, triangle_counts(layers), {g[1] for g in groups}, layers.extra)
     if preview:
         from tavf_mapkit.mesh.preview import write_preview
 
@@ -117,6 +91,44 @@ def export_meshes(layers: ExportLayers, folder: str | Path, fmt: str = "glb", ti
         summary["preview"] = "preview.png"
     write_text_atomic(folder / "mesh.json", json.dumps(summary, indent=2) + "\n")
     return summary
+
+
+def check_export_options(fmt: str, tile_size: float) -> None:
+    if fmt not in FORMATS:
+        raise ValueError(f"format must be one of {', '.join(FORMATS)}")
+    if not (tile_size > 0 and np.isfinite(tile_size)):
+        raise ValueError("tile size must be a positive number of metres")
+
+
+def write_materials(folder: Path, materials) -> None:
+    """tiles/materials.mtl of an OBJ export."""
+    write_text_atomic(Path(folder) / "tiles" / "materials.mtl", _mtl(list(materials)))
+
+
+def write_tile(folder: Path, fmt: str, grid: Grid, index, members) -> dict:
+    """Write one tile file from its (layer, material, mesh) members (in group order); return its mesh.json entry."""
+    counts = {"lanes": 0, "marks": 0, "solids": 0}
+    for layer, _, part in members:
+        counts[layer] += len(part.faces)
+    relative = f"tiles/{tile_name(index)}.{fmt}"
+    data = _glb(members, grid.origin) if fmt == "glb" else _obj(members, grid.origin).encode("utf-8")
+    write_bytes_atomic(Path(folder) / relative, data)
+    return {"file": relative, "index": [int(index[0]), int(index[1])], "bounds": grid.tile_bounds(index),
+            "triangles": counts, "materials": sorted({material for _, material, _ in members})}
+
+
+def mesh_summary(fmt: str, grid: Grid, tile_entries: list, triangles: dict, materials, extra: dict) -> dict:
+    """The content of mesh.json (without "preview")."""
+    return {
+        "format": fmt,
+        "origin": {"x": grid.origin[0], "y": grid.origin[1], "z": grid.origin[2]},
+        "axes": AXES if fmt == "glb" else AXES.replace("glTF", "OBJ"),
+        "tile_size": grid.size,
+        "tiles": tile_entries,
+        "triangles": triangles,
+        "materials": {material: [round(c, 4) for c in material_rgba(material)] for material in sorted(materials)},
+        **extra,
+    }
 
 
 def triangle_counts(layers: ExportLayers) -> dict:

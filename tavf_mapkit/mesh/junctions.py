@@ -127,32 +127,40 @@ def triangulate_on_grid(footprint, cell: float, budget=None, road: int = 0) -> n
 
 
 class Drape:
-    """Heights and labels of a set of (connecting lane) triangles at plan-view points; built once, asked often."""
+    """Heights and labels of a set of (connecting lane) triangles at plan-view points; built once, asked often.
 
-    def __init__(self, lanes: LabelledMesh, reach: float = 1e-3):
+    With ``groups`` (one number per triangle) a point only sees the triangles of its own group (its junction
+    cluster), so what a cluster's surface becomes never depends on which other clusters are meshed with it."""
+
+    def __init__(self, lanes: LabelledMesh, reach: float = 1e-3, groups: np.ndarray | None = None):
         self.lanes = lanes
         self.triangles = lanes.vertices[lanes.faces]  # (F, 3, 3)
+        self.groups = np.zeros(len(lanes.faces), dtype=np.int64) if groups is None else np.asarray(groups)
         self.index = PlanIndex(self.triangles[:, :, :2], reach) if len(lanes.faces) else None
 
-    def __call__(self, points: np.ndarray, distance: float = 1e-3):
+    def __call__(self, points: np.ndarray, distance: float = 1e-3, groups: np.ndarray | None = None):
         """Height (mean over the triangles within ``distance``), first such face, its (s, t), and the spread
         (max - min) of their heights. Where connecting roads disagree in height (CARLA's Town07 has junctions
         with 0.6 m between overlapping connecting lanes) no single surface can be within eps of all of them;
         the spread says by how much the data contradicts itself there. A point near no triangle takes the
-        triangle with the nearest centre."""
+        triangle with the nearest centre. ``groups``: each point's group (all 0 when not given)."""
         lanes, tri = self.lanes, self.triangles
         points = np.asarray(points, dtype=float)
         if self.index is None:
             zero = np.zeros(len(points))
             return zero, np.full(len(points), -1), np.zeros((len(points), 2)), zero
+        groups = np.zeros(len(points), dtype=np.int64) if groups is None else np.asarray(groups)
         if distance > self.index.pad:
             self.index = PlanIndex(self.triangles[:, :, :2], distance)
         point_index, face = self.index.covering(points, distance)
+        same = self.groups[face] == groups[point_index]
+        point_index, face = point_index[same], face[same]
         missing = np.setdiff1d(np.arange(len(points)), point_index)
         if len(missing):
-            nearest = _nearest_triangle(tri[:, :, :2], points[missing])
-            point_index = np.concatenate([point_index, missing])
-            face = np.concatenate([face, nearest])
+            nearest = _nearest_triangle(tri[:, :, :2], points[missing], self.groups, groups[missing])
+            found = nearest >= 0
+            point_index = np.concatenate([point_index, missing[found]])
+            face = np.concatenate([face, nearest[found]])
         weights = _barycentric(points[point_index], tri[face, :, :2])
         z = np.einsum("ij,ij->i", weights, tri[face, :, 2])
         count = np.bincount(point_index, minlength=len(points))
@@ -176,20 +184,25 @@ class Drape:
         return height, label_face, uv, spread
 
 
-def _nearest_triangle(plan: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Index of the triangle whose centre is nearest to each point (points off the lanes are rare and
-    close to them, so a coarse candidate search with a brute-force fallback is enough)."""
+def _nearest_triangle(plan: np.ndarray, points: np.ndarray, triangle_groups: np.ndarray,
+                      point_groups: np.ndarray) -> np.ndarray:
+    """Index of the triangle of the point's own group whose centre is nearest to each point, -1 where the group
+    has none (points off the lanes are rare and close to them). Exact, so it depends on the group alone."""
+    from scipy.spatial import cKDTree
+
     centres = plan.mean(axis=1)
     best = np.full(len(points), -1)
-    point, face = PlanIndex(plan, 10.0).candidates(points)
-    if len(point):
-        distance = np.hypot(*(centres[face] - points[point]).T)
-        order = np.lexsort((distance, point))
-        first = np.ones(len(order), dtype=bool)
-        first[1:] = point[order][1:] != point[order][:-1]
-        best[point[order][first]] = face[order][first]
-    for i in np.flatnonzero(best < 0):
-        best[i] = int(np.argmin(np.hypot(*(centres - points[i]).T)))
+    order = np.argsort(triangle_groups, kind="stable")
+    sorted_groups = triangle_groups[order]
+    for group in np.unique(point_groups):
+        lo = np.searchsorted(sorted_groups, group, side="left")
+        hi = np.searchsorted(sorted_groups, group, side="right")
+        if hi <= lo:
+            continue
+        members = order[lo:hi]
+        mine = np.flatnonzero(point_groups == group)
+        _, nearest = cKDTree(centres[members]).query(points[mine])
+        best[mine] = members[nearest]
     return best
 
 
@@ -216,26 +229,37 @@ def _barycentric(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
 
 
 def _refine(plan: np.ndarray, faces: np.ndarray, height: np.ndarray, lanes: LabelledMesh, eps: float,
-            min_edge: float, levels: int = 6):
+            min_edge: float, levels: int = 6, plan_group: np.ndarray | None = None,
+            lane_group: np.ndarray | None = None, plan_road: np.ndarray | None = None):
     """Split junction triangles until their plane is within eps of the draped height at every edge midpoint
     and centre (or edges reach ``min_edge``). Edges are split at their midpoint for both neighbours, and each
-    triangle is cut into 2, 3 or 4 by the pattern of its split edges, so the mesh stays conforming."""
+    triangle is cut into 2, 3 or 4 by the pattern of its split edges, so the mesh stays conforming.
+    ``plan_group`` / ``lane_group``: the cluster of every plan vertex and lane face (clusters never mix);
+    ``plan_road``: the junction's first road of every plan vertex (carried along to new vertices)."""
+    plan_group = np.zeros(len(plan), dtype=np.int64) if plan_group is None else plan_group
+    plan_road = np.zeros(len(plan), dtype=np.int64) if plan_road is None else plan_road
+    lane_group = np.zeros(len(lanes.faces), dtype=np.int64) if lane_group is None else lane_group
     # the connecting lanes' own vertices are check points too: they carry every feature of the height field
     # at the resolution the lanes were meshed with (cross slopes of neighbouring connecting roads, crests)
-    lane_drape = Drape(lanes)
-    targets = np.unique(np.round(lanes.vertices[:, :2], 6), axis=0)
-    target_z = lane_drape(targets)[0]
+    lane_drape = Drape(lanes, groups=lane_group)
+    vertex_group = np.zeros(len(lanes.vertices), dtype=np.int64)
+    vertex_group[lanes.faces.ravel()] = np.repeat(lane_group, 3)
+    keyed = np.unique(np.column_stack([vertex_group, np.round(lanes.vertices[:, :2], 6)]), axis=0)
+    target_group, targets = keyed[:, 0].astype(np.int64), keyed[:, 1:]
+    target_z = lane_drape(targets, groups=target_group)[0]
     for _ in range(levels):
         current = LabelledMesh(np.column_stack([plan, height]), faces, np.zeros(len(faces), dtype=np.int32),
                                np.zeros(len(faces), dtype=np.int32), np.zeros(len(faces), dtype=np.int16))
-        mesh_z, under, _, _ = Drape(current)(targets)
-        target_miss = under[np.abs(mesh_z - target_z) > eps]
+        face_group = plan_group[faces[:, 0]]
+        mesh_z, under, _, _ = Drape(current, groups=face_group)(targets, groups=target_group)
+        target_miss = under[(np.abs(mesh_z - target_z) > eps) & (under >= 0)]
         edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
         unique, edge_of = np.unique(edges, axis=0, return_inverse=True)
         edge_of = edge_of.reshape(-1, 3)  # face edge k runs from corner k to corner k+1
         mid = 0.5 * (plan[unique[:, 0]] + plan[unique[:, 1]])
         centre = plan[faces].mean(axis=1)
-        z = lane_drape(np.concatenate([mid, centre]))[0]
+        z = lane_drape(np.concatenate([mid, centre]),
+                       groups=np.concatenate([plan_group[unique[:, 0]], face_group]))[0]
         long_enough = np.linalg.norm(plan[unique[:, 0]] - plan[unique[:, 1]], axis=1) > min_edge
         split = long_enough & (np.abs(z[:len(mid)] - 0.5 * (height[unique[:, 0]] + height[unique[:, 1]])) > eps)
         # a centre that misses splits the triangle's longest edge
@@ -250,9 +274,11 @@ def _refine(plan: np.ndarray, faces: np.ndarray, height: np.ndarray, lanes: Labe
         new_index = np.full(len(unique), -1)
         new_index[split] = len(plan) + np.arange(np.count_nonzero(split))
         plan = np.concatenate([plan, mid[split]])
+        plan_group = np.concatenate([plan_group, plan_group[unique[split, 0]]])
+        plan_road = np.concatenate([plan_road, plan_road[unique[split, 0]]])
         height = np.concatenate([height, z[:len(mid)][split]])
         faces = _split_faces(faces, new_index[edge_of])
-    return plan, faces, height
+    return plan, faces, height, plan_group, plan_road
 
 
 def _split_faces(faces: np.ndarray, mids: np.ndarray) -> np.ndarray:
@@ -282,15 +308,19 @@ def _split_faces(faces: np.ndarray, mids: np.ndarray) -> np.ndarray:
 
 
 def junction_surfaces(odr, sampling, lanes: LabelledMesh, raised_rows: np.ndarray, cell: float = 5.0,
-                      eps: float = 0.05, min_edge: float = 0.25) -> JunctionSurfaces:
-    """Surfaces of every junction. ``lanes`` are the connecting lanes' flat faces (for heights and labels)."""
+                      eps: float = 0.05, min_edge: float = 0.25,
+                      group_of_road: np.ndarray | None = None) -> JunctionSurfaces:
+    """Surfaces of every junction. ``lanes`` are the connecting lanes' flat faces (for heights and labels);
+    ``group_of_road``: the junction cluster (``mesh.units``) of every road -- a cluster's surfaces are draped on
+    its own connecting lanes only (one cluster for the whole map when not given)."""
     footprints = junction_footprints(odr, sampling, raised_rows)
-    plans, face_sets, offset = [], [], 0
+    plans, face_sets, groups, roads, offset = [], [], [], [], 0
     first_road = {}
     for index, road in enumerate(odr.roads):
         first_road.setdefault(road.junction, index)
     for junction_id, footprint in footprints.items():
-        triangles = triangulate_on_grid(footprint, cell, odr.arrays.budget, first_road.get(junction_id, 0))
+        road = first_road.get(junction_id, 0)
+        triangles = triangulate_on_grid(footprint, cell, odr.arrays.budget, road)
         if not len(triangles):
             continue
         flat = triangles.reshape(-1, 2)
@@ -299,19 +329,32 @@ def junction_surfaces(odr, sampling, lanes: LabelledMesh, raised_rows: np.ndarra
         _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
         plans.append(flat[first])
         face_sets.append(inverse.reshape(-1, 3).astype(np.int64) + offset)
+        groups.append(np.full(len(first), 0 if group_of_road is None else int(group_of_road[road]), dtype=np.int64))
+        roads.append(np.full(len(first), road, dtype=np.int64))
         offset += len(first)
     if not plans or not len(lanes.faces):
         return JunctionSurfaces(LabelledMesh.empty(), footprints)
     plan = np.concatenate(plans)
     faces = np.concatenate(face_sets)
-    lane_drape = Drape(lanes)
-    height = lane_drape(plan)[0]
-    plan, faces, height = _refine(plan, faces, height, lanes, eps, min_edge)
+    plan_group = np.concatenate(groups)
+    lane_group = (np.zeros(len(lanes.faces), dtype=np.int64) if group_of_road is None
+                  else np.asarray(group_of_road, dtype=np.int64)[lanes.road_index])
+    lane_drape = Drape(lanes, groups=lane_group)
+    height = lane_drape(plan, groups=plan_group)[0]
+    plan_road = np.concatenate(roads)
+    plan, faces, height, plan_group, plan_road = _refine(plan, faces, height, lanes, eps, min_edge,
+                                                         plan_group=plan_group, lane_group=lane_group,
+                                                         plan_road=plan_road)
     # one query for vertices (s/t) and face centres (labels)
-    _, label_face, uv, _ = lane_drape(np.concatenate([plan, plan[faces].mean(axis=1)]))
+    _, label_face, uv, _ = lane_drape(np.concatenate([plan, plan[faces].mean(axis=1)]),
+                                      groups=np.concatenate([plan_group, plan_group[faces[:, 0]]]))
     n = len(plan)
     uv, label_face = uv[:n], label_face[n:]
+    # a face with no lane of its cluster under or near it (every flat lane degenerate) keeps its junction's
+    # first road and no lane
+    found = label_face >= 0
+    road_index = np.where(found, lanes.road_index[label_face], plan_road[faces[:, 0]]).astype(np.int32)
+    lane_id = np.where(found, lanes.lane_id[label_face], 0).astype(np.int32)
     return JunctionSurfaces(LabelledMesh(
-        np.column_stack([plan, height]), faces,
-        lanes.road_index[label_face].astype(np.int32), lanes.lane_id[label_face].astype(np.int32),
+        np.column_stack([plan, height]), faces, road_index, lane_id,
         np.full(len(faces), KIND_CODE["junction"], dtype=np.int16), uv), footprints)

@@ -63,6 +63,25 @@ class LabelledMesh:
                             self.road_index[face_mask], self.lane_id[face_mask], self.kind[face_mask],
                             None if self.uv is None else self.uv[used])
 
+    def grouped(self, face_group: np.ndarray):
+        """The same mesh with its faces (and vertices) ordered by ``face_group``, keeping their order inside a
+        group; every vertex must belong to faces of one group. A batch of units reordered so is, unit by unit,
+        what each unit gives meshed alone (``mesh.units``)."""
+        face_group = np.asarray(face_group)
+        order = np.argsort(face_group, kind="stable")
+        vertex_group = np.zeros(len(self.vertices), dtype=face_group.dtype)
+        vertex_group[self.faces[order].ravel()] = np.repeat(face_group[order], 3)
+        vertex_order = np.argsort(vertex_group, kind="stable")
+        new_index = np.empty(len(vertex_order), dtype=np.int64)
+        new_index[vertex_order] = np.arange(len(vertex_order))
+        return self._rebuilt(self.vertices[vertex_order], new_index[self.faces[order]], order,
+                             None if self.uv is None else self.uv[vertex_order])
+
+    def _rebuilt(self, vertices, faces, face_index, uv):
+        """A mesh of the same class from new vertices / faces; per-face labels taken at ``face_index``."""
+        return LabelledMesh(vertices, faces, self.road_index[face_index], self.lane_id[face_index],
+                            self.kind[face_index], uv)
+
     def to_trimesh(self):
         import trimesh
 

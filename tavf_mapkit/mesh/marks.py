@@ -22,6 +22,7 @@ import numpy as np
 from tavf_mapkit.mesh.adaptive import AdaptiveSamples
 from tavf_mapkit.mesh.cleanup import face_cross, proper_faces
 from tavf_mapkit.mesh.evaluate import reference_frames
+from tavf_mapkit.mesh.exact import search_pairs
 from tavf_mapkit.mesh.labelled import KIND_CODE, LabelledMesh
 from tavf_mapkit.opendrive.locate import border_offsets
 
@@ -44,6 +45,11 @@ class RoadMarkMesh(LabelledMesh):
         base = LabelledMesh.select(self, face_mask)
         return RoadMarkMesh(base.vertices, base.faces, base.road_index, base.lane_id, base.kind, base.uv,
                             self.colour[face_mask])
+
+    def _rebuilt(self, vertices, faces, face_index, uv):
+        base = LabelledMesh._rebuilt(self, vertices, faces, face_index, uv)
+        return RoadMarkMesh(base.vertices, base.faces, base.road_index, base.lane_id, base.kind, base.uv,
+                            self.colour[face_index])
 
     @classmethod
     def empty(cls) -> RoadMarkMesh:
@@ -76,18 +82,23 @@ class _Lines:
     dots: list
 
 
-def _line_rows(odr) -> _Lines:
+def _line_rows(odr, roads=None) -> _Lines:
+    """The mark lines of every road (of the ``roads`` indices only, when given)."""
     arrays = odr.arrays
-    row_of = {(int(sec), int(lane)): row for row, (sec, lane) in enumerate(zip(arrays.lane_section, arrays.lane_id))}
+    first_section = np.searchsorted(arrays.section_road, np.arange(len(odr.roads)), side="left")
+    first_lane = np.searchsorted(arrays.lane_section, np.arange(len(arrays.section_s0) + 1), side="left")
     out = _Lines(*[[] for _ in range(13)])
-    section_index = 0
-    for road_index, road in enumerate(odr.roads):
+    for road_index in (range(len(odr.roads)) if roads is None else np.asarray(roads).tolist()):
+        road = odr.roads[road_index]
+        section_index = int(first_section[road_index])
         for k, section in enumerate(road.lane_sections):
             end = road.section_end(k)
+            rows = range(first_lane[section_index], first_lane[section_index + 1])
+            row_of = {int(arrays.lane_id[row]): row for row in rows}
             for lane in section.lanes:
                 if not lane.road_marks or end - section.s0 <= 0:
                     continue
-                row = -1 if lane.id == 0 else row_of.get((section_index, lane.id))
+                row = -1 if lane.id == 0 else row_of.get(lane.id)
                 if row is None:
                     continue
                 marks = sorted(lane.road_marks, key=lambda m: m.s_offset)
@@ -165,11 +176,13 @@ def _pieces(lines: _Lines, budget):
     return line[keep], a[keep], b[keep]
 
 
-def road_marks(odr, eps: float = 0.05, samples: AdaptiveSamples | None = None) -> RoadMarkMesh:
-    """Every painted road mark of the map (kind "roadmark"), on the lane surface's adaptive samples."""
+def road_marks(odr, eps: float = 0.05, samples: AdaptiveSamples | None = None, roads=None) -> RoadMarkMesh:
+    """Every painted road mark of the map (kind "roadmark"), on the lane surface's adaptive samples; of the
+    ``roads`` indices only when given (``samples`` must then cover their sections). Each road's marks depend
+    on that road alone."""
     from tavf_mapkit.mesh.adaptive import adaptive_samples
 
-    lines = _line_rows(odr)
+    lines = _line_rows(odr, roads)
     if not lines.road:
         return RoadMarkMesh.empty()
     if samples is None:
@@ -207,11 +220,10 @@ def _ribbons(odr, lines: _Lines, line, a, b, samples: AdaptiveSamples) -> RoadMa
     if not len(line):
         return RoadMarkMesh.empty()
     section = np.array(lines.section)[line]
-    # the surface's own samples inside each piece, plus the piece's ends
-    span = float(np.max(samples.s, initial=0.0)) + 1.0
-    keys = samples.section * span + samples.s
-    lo = np.searchsorted(keys, section * span + a, side="right")
-    hi = np.searchsorted(keys, section * span + b, side="left")
+    # the surface's own samples inside each piece, plus the piece's ends (an exact search by (section, s),
+    # so the samples of other sections never matter)
+    lo = search_pairs(samples.section, samples.s, section, a, "right")
+    hi = search_pairs(samples.section, samples.s, section, b, "left")
     inner = np.maximum(hi - lo, 0)
     count = inner + 2
     piece = np.repeat(np.arange(len(line)), count)

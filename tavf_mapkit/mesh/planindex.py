@@ -16,7 +16,8 @@ class PlanIndex:
     def __init__(self, plan: np.ndarray, pad: float = 1e-3, cell: float | None = None):
         self.plan = np.asarray(plan, dtype=float)
         self.pad = pad
-        low, high = self.plan.min(axis=1) - pad, self.plan.max(axis=1) + pad
+        self.box_low, self.box_high = self.plan.min(axis=1), self.plan.max(axis=1)
+        low, high = self.box_low - pad, self.box_high + pad
         if cell is None:
             extent = np.max(high - low, axis=1)
             cell = float(np.clip(np.median(extent), 0.25, 50.0)) if len(extent) else 1.0
@@ -56,8 +57,9 @@ class PlanIndex:
 
     def covering(self, points: np.ndarray, tolerance: float | None = None):
         """(point index, triangle index) of triangles that contain a point or pass within ``tolerance``
-        (at most ``pad``, the default) of it -- measured to each edge line, so a little more near sharp
-        corners."""
+        (at most ``pad``, the default) of it -- measured to each edge line and to the triangle's box, so a
+        little more near sharp corners. A pure question of geometry: the grid only finds the candidates, so
+        the answer for a point never depends on which other triangles the index holds."""
         tolerance = self.pad if tolerance is None else min(tolerance, self.pad)
         points = np.asarray(points, dtype=float)
         point, triangle = self.candidates(points)
@@ -66,7 +68,8 @@ class PlanIndex:
         p = points[point]
         distance = (self.normal_x[triangle] * p[:, :1] + self.normal_y[triangle] * p[:, 1:2]
                     - self.offset[triangle])
-        inside = np.all(distance >= -tolerance, axis=1)
+        in_box = np.all((p >= self.box_low[triangle] - tolerance) & (p <= self.box_high[triangle] + tolerance), axis=1)
+        inside = np.all(distance >= -tolerance, axis=1) & in_box
         return point[inside], triangle[inside]
 
     def _edge_lines(self) -> None:

@@ -1,4 +1,10 @@
-"""Top view PNG of the exported meshes: lanes coloured by type, junctions, marks and solids on top."""
+"""Top view PNG of the exported meshes: lanes coloured by type, junctions, marks and solids on top.
+
+Painted piece by piece (a tile at a time) on one mask per material: the triangles of one material all have
+its colour, so only the order of the materials matters (lanes, then marks, then solids, each by code; later
+ones cover earlier ones), and the masks are laid on the image in that order at the end. The picture is the
+same as painting every material's triangles of the whole map in turn, with memory for the masks only.
+"""
 
 from __future__ import annotations
 
@@ -11,36 +17,90 @@ from tavf_mapkit.fileutil import write_bytes_atomic
 from tavf_mapkit.mesh.materials import rgb8
 
 BACKGROUND = (250, 250, 247)
+LAYERS = ("lanes", "marks", "solids")
+MAX_PIXELS = 2048
+MARGIN = 8
 
 
-def render_preview(layers, max_pixels: int = 2048, margin: int = 8):
+class PreviewCanvas:
+    """The preview of a map whose plan-view vertex bounds are (low, high); paint() any number of times."""
+
+    def __init__(self, low, high, max_pixels: int = MAX_PIXELS, margin: int = MARGIN):
+        from PIL import Image
+
+        self.empty = low is None or high is None
+        self.masks: dict[tuple, tuple[str, object, object]] = {}
+        if self.empty:
+            self.image = Image.new("RGB", (64, 64), BACKGROUND)
+            return
+        self.low = np.asarray(low, dtype=float)
+        extent = np.maximum(np.asarray(high, dtype=float) - self.low, 1e-6)
+        self.scale = (max_pixels - 2 * margin) / float(extent.max())
+        self.margin = margin
+        width, height = (np.ceil(extent * self.scale).astype(int) + 2 * margin)
+        self.size = (int(width), int(height))
+
+    def paints(self, layer: str) -> bool:
+        # paint narrower than a pixel would only speckle the lanes
+        return not (layer == "marks" and self.scale < 8.0)
+
+    def paint(self, layer: str, material: str, code: int, mesh) -> None:
+        """Paint the triangles of one material (``code``: its kind or colour code, which orders materials)."""
+        from PIL import Image, ImageDraw
+
+        if self.empty or not self.paints(layer) or not len(mesh.faces):
+            return
+        key = (LAYERS.index(layer), int(code))
+        if key not in self.masks:
+            mask = Image.new("L", self.size, 0)
+            self.masks[key] = (material, mask, ImageDraw.Draw(mask))
+        draw = self.masks[key][2]
+        xy = (mesh.vertices[:, :2] - self.low) * self.scale + self.margin
+        xy[:, 1] = self.size[1] - xy[:, 1]  # north up
+        for triangle in xy[mesh.faces].tolist():
+            draw.polygon([tuple(p) for p in triangle], fill=255)
+
+    def render(self):
+        from PIL import Image
+
+        if self.empty:
+            return self.image
+        image = Image.new("RGB", self.size, BACKGROUND)
+        for key in sorted(self.masks):
+            material, mask, _ = self.masks[key]
+            image.paste(rgb8(material), mask=mask)
+        return image
+
+    def save(self, path: str | Path) -> None:
+        buffer = io.BytesIO()
+        self.render().save(buffer, format="PNG", optimize=False)
+        write_bytes_atomic(path, buffer.getvalue())
+
+
+def group_code(layer: str, material: str) -> int:
+    """The code that orders a material inside its layer (kind code; colour index for marks)."""
+    from tavf_mapkit.mesh.labelled import KIND_CODE
+    from tavf_mapkit.mesh.marks import MARK_COLOURS
+
+    if layer == "marks":
+        return MARK_COLOURS.index(material.removeprefix("roadmark_"))
+    return KIND_CODE[material]
+
+
+def render_preview(layers, max_pixels: int = MAX_PIXELS, margin: int = MARGIN):
     """A PIL image of the plan view (north up), at most ``max_pixels`` on the longer side."""
-    from PIL import Image, ImageDraw
-
     groups = layers.groups()
     points = [mesh.vertices[:, :2] for _, _, mesh in groups if len(mesh.vertices)]
     if not points:
-        return Image.new("RGB", (64, 64), BACKGROUND)
+        return PreviewCanvas(None, None).render()
     allp = np.concatenate(points)
-    low, high = allp.min(axis=0), allp.max(axis=0)
-    extent = np.maximum(high - low, 1e-6)
-    scale = (max_pixels - 2 * margin) / float(extent.max())
-    width, height = (np.ceil(extent * scale).astype(int) + 2 * margin)
-    image = Image.new("RGB", (int(width), int(height)), BACKGROUND)
-    draw = ImageDraw.Draw(image)
-    # painters' order: lanes, then marks, then solids (buildings last, they stand on top)
+    canvas = PreviewCanvas(allp.min(axis=0), allp.max(axis=0), max_pixels, margin)
     for layer, material, mesh in groups:
-        if layer == "marks" and scale < 8.0:
-            continue  # paint narrower than a pixel: it would only speckle the lanes
-        xy = (mesh.vertices[:, :2] - low) * scale + margin
-        xy[:, 1] = height - xy[:, 1]  # north up
-        colour = rgb8(material)
-        for triangle in xy[mesh.faces].tolist():
-            draw.polygon([tuple(p) for p in triangle], fill=colour)
-    return image
+        canvas.paint(layer, material, group_code(layer, material), mesh)
+    return canvas.render()
 
 
-def write_preview(layers, path: str | Path, max_pixels: int = 2048) -> None:
+def write_preview(layers, path: str | Path, max_pixels: int = MAX_PIXELS) -> None:
     buffer = io.BytesIO()
     render_preview(layers, max_pixels).save(buffer, format="PNG", optimize=False)
     write_bytes_atomic(path, buffer.getvalue())

@@ -32,6 +32,7 @@ OVERHEAD_THICKNESS = 1.0  # m: its thickness when no height above the clearance 
 MIN_AREA = 0.5            # m2: smaller footprints are mapping noise
 MAX_HEIGHT = 1000.0       # m: taller tags are typos (the tallest building is 828 m)
 PASSAGE_MARGIN = 0.5      # m of clearance beside a drivable lane that passes through a building
+GROUND_NEIGHBOURS = 8     # road-surface vertices nearest to a building whose lowest is its ground
 _NUMBER = re.compile(r"^\s*([-+]?\d+(?:[.,]\d+)?)\s*(m|ft|'|)\s*$")
 
 
@@ -170,7 +171,20 @@ def building_solids(odr, surface, osm_path: Path | None) -> tuple[list[Solid], l
         return [], []
     if odr.georeference is None:
         return [], [f"{osm_path}: no geoReference in the OpenDRIVE, buildings cannot be placed"]
-    ground = _ground(surface)
+    parts, skipped = building_parts(odr, osm_path)
+    ground = ground_heights(surface)
+    solids = []
+    for _, where, polygon, extent in passage_pieces(parts, surface):
+        try:
+            solids.append(extrude_building(polygon, extent, ground, where))
+        except SolidError as error:
+            skipped.append(f"{where}: {error}")
+    return solids, skipped
+
+
+def building_parts(odr, osm_path: Path) -> tuple[list[tuple], list[str]]:
+    """(source, polygon, (bottom, top)) of every building part of an OSM file in local coordinates, in file
+    order, and a line for every footprint that gives none."""
     parts, skipped = [], []
     for footprint in read_footprints(Path(osm_path)):
         extent = vertical_extent(footprint.tags)
@@ -187,36 +201,33 @@ def building_solids(odr, surface, osm_path: Path | None) -> tuple[list[Solid], l
         for k, polygon in enumerate(polygons):
             parts.append((footprint.source if len(polygons) == 1 else f"{footprint.source} part {k}", polygon,
                           extent))
-    solids = []
-    for where, polygon, extent in _passages(parts, surface):
-        try:
-            solids.append(_extrude(polygon, extent, ground, where))
-        except SolidError as error:
-            skipped.append(f"{where}: {error}")
-    return solids, skipped
+    return parts, skipped
 
 
-def _passages(parts, surface):
-    """Where a building stands on a drivable lane (a passage through it, mapped on the street as
-    ``tunnel=building_passage``), the part over the lane starts at OVERHEAD_CLEARANCE: the road exists in the
-    OpenDRIVE, so the building must let it through."""
+def passage_pieces(parts, surface, numbers=None) -> list[tuple]:
+    """(part number, where, polygon, extent) of every piece to extrude: a part that stands on a drivable lane
+    (a passage through the building, mapped on the street as ``tunnel=building_passage``) is cut there, and its
+    piece over the lane starts at OVERHEAD_CLEARANCE -- the road exists in the OpenDRIVE, so the building
+    must let it through. Only the drivable faces under a part matter. ``numbers``: the parts' own numbers
+    (their index in ``parts`` by default)."""
     import shapely
 
     from tavf_mapkit.mesh.kinds import DRIVABLE_KINDS
     from tavf_mapkit.mesh.labelled import KIND_CODE
 
+    numbers = list(range(len(parts))) if numbers is None else list(numbers)
     if surface is None or not parts or not len(surface.faces):
-        return parts
+        return [(n, where, polygon, extent) for n, (where, polygon, extent) in zip(numbers, parts)]
     drivable = np.isin(surface.kind, [KIND_CODE[k] for k in DRIVABLE_KINDS])
     triangles = shapely.polygons(surface.vertices[surface.faces[drivable]][:, :, :2])
     triangles = triangles[shapely.area(triangles) > 1e-9]
     tree = shapely.STRtree([polygon for _, polygon, _ in parts])
     part_index, triangle_index = tree.query(triangles, predicate="intersects")[::-1]
     out = []
-    for i, (where, polygon, (bottom, top)) in enumerate(parts):
+    for i, (number, (where, polygon, (bottom, top))) in enumerate(zip(numbers, parts)):
         mine = triangle_index[part_index == i]
         if not len(mine):
-            out.append((where, polygon, (bottom, top)))
+            out.append((number, where, polygon, (bottom, top)))
             continue
         lanes = shapely.union_all(triangles[mine]).buffer(PASSAGE_MARGIN)
         ground_parts = shapely.get_parts(shapely.make_valid(polygon.difference(lanes)))
@@ -228,13 +239,19 @@ def _passages(parts, surface):
         k = 0
         for piece, extent, note in pieces:
             if piece.geom_type == "Polygon" and piece.area >= MIN_AREA:
-                out.append((f"{where} passage {k}{note}", piece, extent))
+                out.append((number, f"{where} passage {k}{note}", piece, extent))
                 k += 1
     return out
 
 
-def _ground(surface):
-    """z of the ground near (x, y): lowest of the nearest road-surface vertices (0 without a surface)."""
+def ground_point(polygon) -> np.ndarray:
+    """The plan point of a building piece whose ground height it stands on (its representative point)."""
+    centre = polygon.representative_point()
+    return np.array([centre.x, centre.y])
+
+
+def ground_heights(surface, reach: int = GROUND_NEIGHBOURS):
+    """z of the ground near (x, y): lowest of the ``reach`` nearest road-surface vertices (0 without a surface)."""
     if surface is None or not len(surface.vertices):
         return lambda x, y: 0.0
     from scipy.spatial import cKDTree
@@ -243,16 +260,17 @@ def _ground(surface):
     z = surface.vertices[:, 2]
 
     def at(x, y):
-        _, index = tree.query([x, y], k=min(8, len(z)))
+        _, index = tree.query([x, y], k=min(reach, len(z)))
         return float(np.min(z[np.atleast_1d(index)]))
 
     return at
 
 
-def _extrude(polygon, extent, ground, where) -> Solid:
+def extrude_building(polygon, extent, ground, where) -> Solid:
+    """The solid of one building piece standing on ``ground(x, y)`` at its ``ground_point``."""
     bottom, top = extent
-    centre = polygon.representative_point()
-    anchor = np.array([centre.x, centre.y, ground(centre.x, centre.y)])
+    point = ground_point(polygon)
+    anchor = np.array([point[0], point[1], ground(point[0], point[1])])
     contours = [np.asarray(polygon.exterior.coords)[:-1, :2] - anchor[:2]]
     contours += [np.asarray(ring.coords)[:-1, :2] - anchor[:2] for ring in polygon.interiors]
     section = manifold3d.CrossSection(contours, manifold3d.FillRule.EvenOdd)

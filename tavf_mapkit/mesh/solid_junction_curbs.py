@@ -27,7 +27,7 @@ import shapely
 from tavf_mapkit.mesh.labelled import KIND_CODE, LabelledMesh
 from tavf_mapkit.mesh.solid_curbs import CURB_FOUNDATION
 from tavf_mapkit.mesh.solid_kit import Solid, SolidError, to_solid
-from tavf_mapkit.mesh.swept_path import swept_section
+from tavf_mapkit.mesh.swept_path import centre_pieces, swept_section
 from tavf_mapkit.opendrive.sampling import sample_lanes_at
 
 JUNCTION_CURB_HEIGHT = 0.15   # m above the junction's edge (a common kerb upstand)
@@ -38,40 +38,89 @@ HEIGHT_STEP = 0.25            # m: open borders are sampled this densely for the
 MIN_AREA = 0.02               # m^2: smaller curb pieces are dropped
 TOUCH = 0.002                 # m: a curb piece with no corner this close to the open border is dropped
 CAP_TOLERANCE = 0.05          # m: a border edge this close to a connecting road's start or end is an entry
+CONTEXT_REACH = 2.0           # m: surface faces this far from a cluster's junction faces can touch its curbs
+ROAD_REACH = 10.0             # m: roads whose coarse box is this close may sweep over (or end at) its curbs
 
 
-def junction_curb_solids(odr, surface: LabelledMesh) -> tuple[list[Solid], list[str]]:
+def junction_curb_solids(odr, surface: LabelledMesh, units=None) -> tuple[list[Solid], list[str]]:
     """One curb solid per connected curb piece along the open sides of every junction, ordered by junction
-    and position (and "where: why" for pieces that could not be made)."""
+    and position (and "where: why" for pieces that could not be made). Junction clusters (``mesh.units``) are
+    curbed one by one, each from its own surroundings (``cluster_curb_solids``)."""
+    from tavf_mapkit.mesh.units import mesh_units
+
     if surface is None or not len(surface.faces):
         return [], []
     junction_face = surface.kind == KIND_CODE["junction"]
     if not np.any(junction_face):
         return [], []
+    units = mesh_units(odr) if units is None else units
+    face_unit = units.road_unit[surface.road_index]
+    made = []
+    around = CurbSurroundings(odr)  # every road's lanes, sampled once
+    for unit in np.unique(face_unit[junction_face]).tolist():
+        made.extend(cluster_curb_solids(odr, surface, junction_face & (face_unit == unit), units, around))
+    made.sort(key=lambda item: item[0])
+    return [item[1] for item in made if item[1] is not None], [item[2] for item in made if item[2] is not None]
+
+
+def curb_context(surface: LabelledMesh, cluster_faces: np.ndarray):
+    """(plan box of a cluster's junction faces, mask of the faces that may touch its curbs: their plan boxes
+    come within CONTEXT_REACH of that box). Faces further away can neither stand in front of an open side
+    nor under a curb strip, so the curbs made from this part of the surface are those of the whole."""
+    corners = surface.vertices[surface.faces[cluster_faces]][:, :, :2].reshape(-1, 2)
+    box = np.concatenate([corners.min(axis=0), corners.max(axis=0)])
     plan = surface.vertices[surface.faces][:, :, :2]
+    low, high = plan.min(axis=1), plan.max(axis=1)
+    near = np.all(low <= box[2:] + CONTEXT_REACH, axis=1) & np.all(high >= box[:2] - CONTEXT_REACH, axis=1)
+    return box, near
+
+
+class CurbSurroundings:
+    """The lanes the curbs of junction clusters must respect -- connecting roads' ends and driving lanes'
+    swept paths -- sampled once for the ``roads`` indices (all when not given), asked per cluster."""
+
+    def __init__(self, odr, roads: np.ndarray | None = None):
+        self.ends, self.end_road = _road_ends(odr, roads)
+        self.pieces = centre_pieces(odr, roads)
+
+    def ends_of(self, roads: np.ndarray) -> np.ndarray:
+        return self.ends[np.isin(self.end_road, roads)]
+
+
+def cluster_curb_solids(odr, surface: LabelledMesh, cluster_faces: np.ndarray, units,
+                        around: CurbSurroundings | None = None) -> list[tuple]:
+    """The curbs of one junction cluster (``cluster_faces``: mask of its junction faces in ``surface``), as
+    (sort key, solid or None, skipped line or None) with sort key (junction id, x, y). Only the surface near
+    the cluster and the roads near it count, so the result is the same from any part of the surface that
+    holds that neighbourhood (the tiled mesher passes the tiles around the cluster). ``around``: the
+    surroundings of (at least) the roads near the cluster, sampled before."""
+    box, near = curb_context(surface, cluster_faces)
+    local = surface.select(near)
+    junction_face = cluster_faces[near]
+    roads = units.roads_near(box, ROAD_REACH)
+    around = CurbSurroundings(odr, roads) if around is None else around
+    plan = local.vertices[local.faces][:, :, :2]
     triangles = shapely.polygons(np.concatenate([plan, plan[:, :1]], axis=1))
     tree = shapely.STRtree(triangles)
-    edges, face = _open_edges(surface, junction_face, triangles, tree, _road_ends(odr))
+    edges, face = _open_edges(local, junction_face, triangles, tree, around.ends_of(roads))
     if not len(face):
-        return [], []
+        return []
     order, chain = _chains(edges)
-    strips = shapely.buffer(_chain_lines(surface.vertices, edges, order, chain), -JUNCTION_CURB_WIDTH,
+    strips = shapely.buffer(_chain_lines(local.vertices, edges, order, chain), -JUNCTION_CURB_WIDTH,
                             single_sided=True, join_style="mitre", mitre_limit=2.0)
     strips = shapely.orient_polygons(shapely.make_valid(strips))
     # the faces the strips overlap: every face one meets, except those owning its own edges (they only touch)
-    strip_of_pair, near = tree.query(strips, predicate="intersects")
-    n_faces = len(surface.faces)
-    own = np.isin(strip_of_pair * n_faces + near, chain * n_faces + face[order])
-    cuts = triangles[np.unique(near[~own])]
-    # all junctions at once: the union of the strips minus the faces, in one plane (manifold3d / Clipper2)
+    strip_of_pair, hit = tree.query(strips, predicate="intersects")
+    n_faces = len(local.faces)
+    own = np.isin(strip_of_pair * n_faces + hit, chain * n_faces + face[order])
+    cuts = triangles[np.unique(hit[~own])]
+    # the cluster's strips minus the faces, in one plane (manifold3d / Clipper2)
     anchor = np.round(shapely.get_coordinates(strips).mean(axis=0))
     section = manifold3d.CrossSection(_contours(strips, anchor), manifold3d.FillRule.Positive)
     if len(cuts):
         section = section - manifold3d.CrossSection(_contours(cuts, anchor), manifold3d.FillRule.Positive)
-    section = section - swept_section(odr, strips, anchor)
-    heights = _BorderHeights(surface.vertices, edges[order], face[order])
-    junction_of_road = np.array([road.junction if road.in_junction else "" for road in odr.roads] + [""],
-                                dtype=object)
+    section = section - swept_section(odr, strips, anchor, roads, around.pieces)
+    heights = _BorderHeights(local.vertices, edges[order], face[order])
     labelled = []
     for piece in section.decompose():
         if piece.area() < MIN_AREA:
@@ -81,9 +130,10 @@ def junction_curb_solids(odr, surface: LabelledMesh) -> tuple[list[Solid], list[
         if distance.min() > TOUCH:  # cut off from the junction by another surface: not a curb of it
             continue
         low, high = corners.min(axis=0), corners.max(axis=0)
-        road_index = int(surface.road_index[behind[np.argmin(distance)]])
-        labelled.append((str(junction_of_road[road_index]), float(low[0] + high[0]), float(low[1] + high[1]),
-                         road_index, piece))
+        road_index = int(local.road_index[behind[np.argmin(distance)]])
+        road = odr.roads[road_index]
+        labelled.append((road.junction if road.in_junction else "", float(low[0] + high[0]),
+                         float(low[1] + high[1]), road_index, piece))
 
     def place(vertices: np.ndarray) -> np.ndarray:
         z = heights(vertices[:, :2] + anchor)[0]
@@ -92,16 +142,16 @@ def junction_curb_solids(odr, surface: LabelledMesh) -> tuple[list[Solid], list[
         return out
 
     labelled.sort(key=lambda item: item[:3])
-    solids, skipped, count = [], [], {}
-    for junction, _, _, road_index, piece in labelled:
+    made, count = [], {}
+    for junction, x, y, road_index, piece in labelled:
         number = count[junction] = count.get(junction, -1) + 1
         where = f"junction {junction} curb {number}"
         try:
-            solids.append(to_solid(piece.extrude(1.0).warp_batch(place), "curb", where, (*anchor, 0.0),
-                                   road_index=road_index, lane_id=0))
+            made.append(((junction, x, y), to_solid(piece.extrude(1.0).warp_batch(place), "curb", where,
+                                                    (*anchor, 0.0), road_index=road_index, lane_id=0), None))
         except SolidError as error:
-            skipped.append(f"{where}: {error}")
-    return solids, skipped
+            made.append(((junction, x, y), None, f"{where}: {error}"))
+    return made
 
 
 def _open_edges(surface: LabelledMesh, junction_face: np.ndarray, triangles: np.ndarray, tree: shapely.STRtree,
@@ -148,12 +198,15 @@ def _open_edges(surface: LabelledMesh, junction_face: np.ndarray, triangles: np.
     return directed[~covered], edge_face[~covered]
 
 
-def _road_ends(odr) -> np.ndarray:
-    """The start and end line of every lane of every connecting road (shapely LineStrings)."""
+def _road_ends(odr, roads: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The start and end line of every lane of every connecting road (of the ``roads`` indices, when given;
+    shapely LineStrings) and the road of each."""
     arrays = odr.arrays
-    in_junction = np.array([road.in_junction for road in odr.roads], dtype=bool)
+    in_junction = np.zeros(len(odr.roads), dtype=bool)
+    for road in (range(len(odr.roads)) if roads is None else np.asarray(roads).tolist()):
+        in_junction[road] = odr.roads[road].in_junction
     if not len(arrays.section_s0) or not np.any(in_junction):
-        return np.zeros(0, dtype=object)
+        return np.zeros(0, dtype=object), np.zeros(0, dtype=np.int64)
     section_road = arrays.section_road
     first = np.flatnonzero(np.r_[True, section_road[1:] != section_road[:-1]])
     last = np.r_[first[1:] - 1, len(section_road) - 1]
@@ -164,7 +217,7 @@ def _road_ends(odr) -> np.ndarray:
     sampling = sample_lanes_at(odr, sections[order], s[order])
     inner = sampling.points_at(sampling.t_inner)[:, :2]
     outer = sampling.points_at(sampling.t_outer)[:, :2]
-    return shapely.linestrings(np.stack([inner, outer], axis=1))
+    return shapely.linestrings(np.stack([inner, outer], axis=1)), sampling.road_index
 
 
 def _chains(edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

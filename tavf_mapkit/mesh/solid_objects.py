@@ -36,10 +36,12 @@ MAX_INSTANCES = 10_000    # per repeat: more is a broken file, not a fence (refu
 MAX_SWEEP_SAMPLES = 100_000
 
 
-def object_solids(odr, eps: float = 0.05) -> tuple[list[Solid], list[str]]:
-    """Solids of every road object, and one line per object that has none (why)."""
+def object_solids(odr, eps: float = 0.05, roads=None) -> tuple[list[Solid], list[str]]:
+    """Solids of every road object (of the ``roads`` indices, when given), and one line per object that has
+    none (why)."""
     solids, skipped = [], []
-    for road_index, road in enumerate(odr.roads):
+    for road_index in (range(len(odr.roads)) if roads is None else np.asarray(roads).tolist()):
+        road = odr.roads[road_index]
         for obj in road.objects:
             where = f"road {road.id} object {obj.id}"
             try:

@@ -48,12 +48,14 @@ def lane_type_at(road, s: float, t: float) -> str | None:
     return None
 
 
-def signal_solids(odr, eps: float = 0.05) -> tuple[list[Solid], list[str]]:
-    """One solid per signal position (pole + plates), and a line per position that has none (why)."""
+def signal_solids(odr, eps: float = 0.05, roads=None) -> tuple[list[Solid], list[str]]:
+    """One solid per signal position (pole + plates), and a line per position that has none (why); of the
+    ``roads`` indices only, when given."""
     from tavf_mapkit.opendrive.surface import surface_points
 
     groups = []  # (road index, s, t, signals), positions of all roads evaluated in one pass
-    for road_index, road in enumerate(odr.roads):
+    for road_index in (range(len(odr.roads)) if roads is None else np.asarray(roads).tolist()):
+        road = odr.roads[road_index]
         by_place: dict[tuple[float, float], list] = {}
         for signal in road.signals:
             by_place.setdefault((round(signal.s, 2), round(signal.t, 2)), []).append(signal)

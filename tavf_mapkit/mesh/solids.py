@@ -34,20 +34,29 @@ class SceneSolids:
 
     def to_npz_bytes(self) -> bytes:
         """Every solid (its mesh, kind and source) and the skipped parts as one byte-reproducible ``.npz``."""
+        return npz_bytes(self.arrays())
+
+    def arrays(self) -> dict:
         mesh = self.mesh()
-        return npz_bytes({
+        return {
             "vertices": mesh.vertices, "faces": mesh.faces, "road_index": mesh.road_index,
             "lane_id": mesh.lane_id, "kind": mesh.kind,
             "solid_vertices": np.array([len(s.mesh.vertices) for s in self.solids], dtype=np.int64),
             "solid_faces": np.array([s.triangles for s in self.solids], dtype=np.int64),
             "solid_kind": np.array([s.kind for s in self.solids], dtype=str),
             "solid_source": np.array([s.source for s in self.solids], dtype=str),
-            "skipped": np.array(self.skipped, dtype=str)})
+            "skipped": np.array(self.skipped, dtype=str)}
 
     @classmethod
     def load_npz(cls, path: str | Path) -> SceneSolids:
         with np.load(path, allow_pickle=False) as data:
-            arrays = {name: data[name] for name in data.files}
+            return cls.from_arrays({name: data[name] for name in data.files})
+
+    @classmethod
+    def from_arrays(cls, arrays: dict, prefix: str = "") -> SceneSolids:
+        arrays = {name[len(prefix):]: value for name, value in arrays.items() if name.startswith(prefix)}
+        if "solid_kind" not in arrays:
+            return cls((), ())
         vertex_end = np.cumsum(arrays["solid_vertices"])
         face_end = np.cumsum(arrays["solid_faces"])
         solids = []
@@ -57,7 +66,7 @@ class SceneSolids:
             solids.append(Solid(kind, LabelledMesh(
                 arrays["vertices"][v0:vertex_end[k]], arrays["faces"][faces] - v0, arrays["road_index"][faces],
                 arrays["lane_id"][faces], arrays["kind"][faces]), source))
-        return cls(tuple(solids), tuple(arrays["skipped"].tolist()))
+        return cls(tuple(solids), tuple(arrays.get("skipped", np.zeros(0, dtype=str)).tolist()))
 
 
 def scene_solid_parts(odr, surface: LabelledMesh | None, osm_path: Path | None = None,

@@ -11,6 +11,7 @@ from tavf_mapkit.mesh.cleanup import drop_degenerate
 from tavf_mapkit.mesh.junctions import junction_surfaces
 from tavf_mapkit.mesh.labelled import KIND_CODE, LabelledMesh
 from tavf_mapkit.mesh.lanes import build_lane_meshes, raised_lane_rows
+from tavf_mapkit.mesh.units import MeshUnits, mesh_units
 from tavf_mapkit.opendrive.sampling import sample_lanes_at
 
 DEFAULT_EPS = 0.05        # m
@@ -30,17 +31,25 @@ class RoadSurface:
 
 
 def build_road_surface(odr, eps: float = DEFAULT_EPS, junction_cell: float = JUNCTION_CELL,
-                       max_segment: float = MAX_SEGMENT) -> RoadSurface:
-    samples = adaptive_samples(odr, eps, max_segment)
+                       max_segment: float = MAX_SEGMENT, units: MeshUnits | None = None,
+                       roads: np.ndarray | None = None) -> RoadSurface:
+    """The road surface of the map, or of the given roads (whole units of ``units``: a batch of the tiled
+    mesher). Faces come unit by unit in the order of ``units`` (``mesh.units``), each unit's as it is alone."""
+    units = mesh_units(odr) if units is None else units
+    arrays = odr.arrays
+    sections = None if roads is None else np.flatnonzero(np.isin(arrays.section_road, roads))
+    samples = adaptive_samples(odr, eps, max_segment, sections=sections)
     sampling = sample_lanes_at(odr, samples.section, samples.s)
     lanes, face_row = build_lane_meshes(odr, sampling)
     in_junction = np.array([road.in_junction for road in odr.roads] + [False], dtype=bool)
-    raised = raised_lane_rows(odr.arrays)
+    raised = raised_lane_rows(arrays)
     junction_face = (in_junction[lanes.road_index] & ~raised[face_row] if len(face_row)
                      else np.zeros(0, dtype=bool)) & (lanes.kind != KIND_CODE["curb"])
     junction_lanes = lanes.select(junction_face)
-    junctions = junction_surfaces(odr, sampling, junction_lanes, raised, junction_cell, eps)
+    junctions = junction_surfaces(odr, sampling, junction_lanes, raised, junction_cell, eps,
+                                  group_of_road=units.road_unit)
     mesh = drop_degenerate(LabelledMesh.concatenate([lanes.select(~junction_face), junctions.mesh]))
+    mesh = mesh.grouped(units.road_unit[mesh.road_index])
     return RoadSurface(mesh, samples, junctions.footprints, junction_lanes, eps)
 
 

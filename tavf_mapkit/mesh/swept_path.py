@@ -16,6 +16,7 @@ import manifold3d
 import numpy as np
 import shapely
 
+from tavf_mapkit.mesh.exact import run_cumsum, run_interp
 from tavf_mapkit.mesh.kinds import LANE_TYPE_KIND
 from tavf_mapkit.opendrive.sampling import sample_lanes_at, section_samples
 
@@ -40,7 +41,8 @@ def wheelbase_curvature(lane: np.ndarray, points: np.ndarray, window: float = DE
     """Curvature (1/m, unsigned) at every point of polylines (runs of consecutive points with the same
     ``lane``): the heading change over one DESIGN_WHEELBASE (or ``window``) of arc length centred on the
     point (cut at the run's ends), over that length. A car smooths a kink over its own length, so a kink
-    counts by its angle over a wheelbase, not as the infinite curvature of a corner."""
+    counts by its angle over a wheelbase, not as the infinite curvature of a corner. Each run is measured on
+    its own, to the bit: a run's curvatures never depend on the runs around it."""
     n = len(points)
     step = np.hypot(*np.diff(points, axis=0).T) if n > 1 else np.zeros(0)
     # a repeated point has no heading: it takes the curvature of the point before
@@ -53,15 +55,19 @@ def wheelbase_curvature(lane: np.ndarray, points: np.ndarray, window: float = DE
         along = points[1:] - points[:-1]
         length = np.where(same, np.hypot(along[:, 0], along[:, 1]), 0.0)
         heading = np.arctan2(along[:, 1], along[:, 0])
-        # heading made continuous inside each run (turns across run boundaries are left out)
-        turn = np.where(same[1:] & same[:-1], (heading[1:] - heading[:-1] + np.pi) % (2 * np.pi) - np.pi, 0.0)
-        unwrapped = np.r_[0.0, np.cumsum(turn)]
-        arc = np.r_[0.0, np.cumsum(length)]  # runs follow each other without a gap
         run = np.cumsum(np.r_[True, ~same]) - 1
-        segment = np.flatnonzero(same)
+        # arc length from the run's start (a crossing between runs has length 0)
+        arc = run_cumsum(np.r_[0.0, length], run)
+        segment = np.flatnonzero(same)  # segment k joins point k and k + 1
+        seg_run = run[segment]
+        # heading made continuous inside each run, from the run's first segment
+        turn = (heading[segment[1:]] - heading[segment[:-1]] + np.pi) % (2 * np.pi) - np.pi
+        turn = np.r_[0.0, np.where(seg_run[1:] == seg_run[:-1], turn, 0.0)]
+        unwrapped = run_cumsum(turn, seg_run)
         middle = 0.5 * (arc[segment] + arc[segment + 1])
-        runs, first = np.unique(run[segment], return_index=True)
+        first = np.flatnonzero(np.r_[True, seg_run[1:] != seg_run[:-1]])
         last = np.r_[first[1:], len(segment)] - 1
+        runs = seg_run[first]
         lo, hi = np.full(run[-1] + 1, np.nan), np.full(run[-1] + 1, np.nan)
         lo[runs], hi[runs] = middle[first], middle[last]
         start, end = np.full(run[-1] + 1, np.nan), np.full(run[-1] + 1, np.nan)
@@ -72,16 +78,22 @@ def wheelbase_curvature(lane: np.ndarray, points: np.ndarray, window: float = DE
         # headings are read between the run's first and last segment middles, so runs never mix
         back = np.clip(arc[has] - half, lo[r], hi[r])
         ahead = np.clip(arc[has] + half, lo[r], hi[r])
-        change = np.abs(np.interp(ahead, middle, unwrapped[segment]) - np.interp(back, middle, unwrapped[segment]))
+        change = np.abs(run_interp(ahead, r, middle, unwrapped, seg_run)
+                        - run_interp(back, r, middle, unwrapped, seg_run))
         span = np.minimum(arc[has] + half, end[r]) - np.maximum(arc[has] - half, start[r])
         curvature[has] = np.where(span > 1e-9, change / np.maximum(span, 1e-9), 0.0)
     return curvature[np.cumsum(~repeat) - 1]
 
 
-def swept_section(odr, near: np.ndarray, anchor: np.ndarray) -> manifold3d.CrossSection:
-    """The swept paths of every driving lane that comes within reach of the shapely geometries ``near``, as
-    one manifold3d CrossSection in local x, y minus ``anchor`` (empty when none comes near)."""
-    lines, width = _centre_pieces(odr)
+def swept_section(odr, near: np.ndarray, anchor: np.ndarray, roads: np.ndarray | None = None,
+                  pieces: tuple | None = None) -> manifold3d.CrossSection:
+    """The swept paths of every driving lane (of the ``roads`` indices, when given) that comes within reach of
+    the shapely geometries ``near``, as one manifold3d CrossSection in local x, y minus ``anchor`` (empty when
+    none comes near). ``pieces``: ``centre_pieces`` made before for (at least) those roads."""
+    lines, width, road = centre_pieces(odr, roads) if pieces is None else pieces
+    if pieces is not None and roads is not None:
+        mine = np.isin(road, roads)
+        lines, width = lines[mine], width[mine]
     if not len(lines) or not len(near):
         return manifold3d.CrossSection()
     _, hit = shapely.STRtree(lines).query(near, predicate="dwithin", distance=float(width.max()))
@@ -98,16 +110,20 @@ def swept_section(odr, near: np.ndarray, anchor: np.ndarray) -> manifold3d.Cross
                                    manifold3d.FillRule.Positive)
 
 
-def _centre_pieces(odr) -> tuple[np.ndarray, np.ndarray]:
-    """Every driving lane's centre line in pieces of PIECE samples (shapely LineStrings, plan view) and the
-    swept half width of each piece (at its sharpest point)."""
+def centre_pieces(odr, roads: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every driving lane's centre line (of the ``roads`` indices, when given) in pieces of PIECE samples
+    (shapely LineStrings, plan view), the swept half width of each piece (at its sharpest point) and its road.
+    A piece depends on its own lane alone."""
     arrays = odr.arrays
-    kinds = np.array([LANE_TYPE_KIND.get(str(t).lower(), "other") for t in arrays.lane_type], dtype=object)
-    sections = np.unique(arrays.lane_section[kinds == "driving"])
+    rows = (np.arange(len(arrays.lane_id)) if roads is None
+            else np.flatnonzero(np.isin(arrays.section_road[arrays.lane_section], roads)))
+    driving = np.zeros(len(arrays.lane_id), dtype=bool)
+    driving[rows] = [LANE_TYPE_KIND.get(str(t).lower(), "other") == "driving" for t in arrays.lane_type[rows]]
+    sections = np.unique(arrays.lane_section[driving])
     if not len(sections):
-        return np.zeros(0, dtype=object), np.zeros(0)
+        return np.zeros(0, dtype=object), np.zeros(0), np.zeros(0, dtype=np.int64)
     sampling = sample_lanes_at(odr, *section_samples(arrays, STEP, True, sections))
-    keep = kinds[sampling.pair_lane] == "driving"
+    keep = driving[sampling.pair_lane]
     lane = sampling.pair_lane[keep]
     centre = sampling.center_points(with_height=False)[keep, :2]
     curvature = wheelbase_curvature(lane, centre)
@@ -128,4 +144,6 @@ def _centre_pieces(odr) -> tuple[np.ndarray, np.ndarray]:
     lines = shapely.linestrings(centre[point], indices=owner)
     width = np.zeros(owner.max(initial=-1) + 1)
     np.maximum.at(width, owner, swept_width(curvature[point]))
-    return lines, width
+    road = np.zeros(len(width), dtype=np.int64)
+    road[owner] = sampling.road_index[keep][point]
+    return lines, width, road

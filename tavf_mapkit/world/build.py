@@ -1,4 +1,5 @@
-"""Build the pybullet collision world of a map: collision/world.json plus one OBJ per body.
+"""Build the pybullet collision world of a map: collision/world.json plus one OBJ per body, tile by tile on
+the exported meshes' grid (``mesh.tiles``).
 
 Bodies are static concave triangle meshes, one per tile and group:
 - ``road``: drivable road surface (driving, biking, parking, shoulder, restricted lanes and junction surfaces)
@@ -22,9 +23,9 @@ import numpy as np
 
 from tavf_mapkit.mesh.kinds import DRIVABLE_KINDS
 from tavf_mapkit.mesh.labelled import KIND_CODE, SURFACE_KINDS, LabelledMesh
-from tavf_mapkit.mesh.tiles import map_origin
+from tavf_mapkit.mesh.tiles import Grid, faces_by_tile, map_origin, solid_centres
 from tavf_mapkit.world.objfile import obj_text
-from tavf_mapkit.world.tiles import BodyPart, split_faces, tile_of
+from tavf_mapkit.world.tiles import BodyPart, split_faces
 
 FORMAT = "tavf-mapkit collision world"
 FORMAT_VERSION = 1
@@ -32,25 +33,23 @@ GROUPS = ("road", "roadside", "curb", "object", "signal", "building")
 SOLID_GROUPS = ("curb", "object", "signal", "building")
 
 
-def collision_parts(surface: LabelledMesh, solids, origin: np.ndarray, tile: float) -> list[BodyPart]:
-    """Every body of the world, ordered by tile and group."""
+def tile_bodies(index: tuple[int, int], surface: LabelledMesh | None, solids) -> list[BodyPart]:
+    """The bodies of one tile, ordered by group and name: its road-surface faces (by centroid) as ``road``
+    and ``roadside``, its solids (whole, by centre) one body per group."""
     parts = []
-    if len(surface.faces):
+    if surface is not None and len(surface.faces):
         drivable = np.isin(surface.kind, [KIND_CODE[k] for k in DRIVABLE_KINDS])
-        centroids = surface.vertices[surface.faces].mean(axis=1)
-        tiles = tile_of(centroids[:, :2], origin[:2], tile)
         for group, mask in (("road", drivable), ("roadside", ~drivable)):
-            parts.extend(split_faces(surface.select(mask), tiles[mask], group))
+            if np.any(mask):
+                part = surface.select(mask)
+                parts.extend(split_faces(part, np.tile(index, (len(part.faces), 1)), group))
     for group in SOLID_GROUPS:
         members = [solid for solid in solids if solid.kind == group]
-        if not members:
-            continue
-        mesh = LabelledMesh.concatenate([solid.mesh for solid in members])
-        centres = np.array([0.5 * (s.mesh.vertices.min(axis=0) + s.mesh.vertices.max(axis=0))[:2] for s in members])
-        per_face = np.repeat(tile_of(centres, origin[:2], tile), [len(s.mesh.faces) for s in members], axis=0)
-        parts.extend(split_faces(mesh, per_face, group))
+        if members:
+            mesh = LabelledMesh.concatenate([solid.mesh for solid in members])
+            parts.extend(split_faces(mesh, np.tile(index, (len(mesh.faces), 1)), group))
     rank = {group: k for k, group in enumerate(GROUPS)}
-    return sorted(parts, key=lambda p: (p.index[1], p.index[0], rank[p.group], p.name))
+    return sorted(parts, key=lambda p: (rank[p.group], p.name))
 
 
 def _kind_counts(mesh: LabelledMesh) -> dict[str, int]:
@@ -67,13 +66,12 @@ def build_collision_world(odr, out_dir, eps: float = 0.05, osm_path: Path | None
     the exported meshes' origin (mesh/mesh.json) so visual and collision world line up; by default the
     mesh exporter's rule (``mesh.tiles.map_origin``: whole metres at the middle of the plan bounds, z = 0);
     ``scene`` the scene solids (``mesh.solids.SceneSolids``) when already made from the same surface and input.
+    The whole map is held in memory; a build streams the mesh stage's labelled tiles instead
+    (``build_collision_world_from_tiles``), with the same result.
     """
     from tavf_mapkit.mesh.solids import scene_solid_parts
 
-    if not (eps > 0 and np.isfinite(eps)):
-        raise ValueError("eps must be a positive number of metres")
-    if not (tile > 0 and np.isfinite(tile)):
-        raise ValueError("tile must be a positive number of metres")
+    _check_options(eps, tile)
     if surface is None:
         from tavf_mapkit.mesh import road_surface
 
@@ -82,61 +80,116 @@ def build_collision_world(odr, out_dir, eps: float = 0.05, osm_path: Path | None
         scene = scene_solid_parts(odr, surface, osm_path, eps)
     if origin is None:
         origin = map_origin([surface, scene.mesh()])
+    grid = Grid(tuple(_origin(origin)), float(tile))
+    face_tiles = faces_by_tile(grid.tile_of(surface)) if len(surface.faces) else {}
+    solid_tiles = faces_by_tile(grid.tile_of_points(solid_centres([s.mesh for s in scene.solids])))
+    writer = _WorldWriter(out_dir, grid, eps, world_georeference(odr.header))
+    try:
+        for index in sorted(set(face_tiles) | set(solid_tiles), key=lambda t: (t[1], t[0])):
+            part = surface.select(face_tiles[index]) if index in face_tiles else None
+            writer.add(index, tile_bodies(index, part, [scene.solids[k] for k in solid_tiles.get(index, [])]))
+        return writer.finish({**scene.counts(), "skipped": list(scene.skipped)})
+    except BaseException:
+        writer.abandon()
+        raise
+
+
+def build_collision_world_from_tiles(labelled: Path, out_dir) -> dict:
+    """``build_collision_world`` from labelled tiles (``mesh.tiled``: mesh/labelled of a build), one tile at a
+    time: the memory of a tile, not of the map. The world takes their eps, grid, origin and georeference."""
+    from tavf_mapkit.mesh.tiled import read_labelled_index, read_labelled_tile
+
+    index_json = read_labelled_index(labelled)
+    eps, tile = float(index_json["eps"]), float(index_json["tile_size"])
+    _check_options(eps, tile)
+    grid = Grid(tuple(_origin(index_json["origin"])), tile)
+    writer = _WorldWriter(out_dir, grid, eps, index_json["georeference"])
+    try:
+        for name, index in sorted(zip(index_json["tiles"], map(tuple, index_json["indices"])),
+                                  key=lambda item: (item[1][1], item[1][0])):
+            surface, scene = read_labelled_tile(Path(labelled) / f"{name}.npz")
+            writer.add(index, tile_bodies(index, surface, scene.solids))
+        return writer.finish({**index_json["solid_counts"], "skipped": list(index_json["skipped"])})
+    except BaseException:
+        writer.abandon()
+        raise
+
+
+def world_georeference(header) -> dict:
+    """world.json's georeference: the header's PROJ string and offset."""
+    return {"proj": header.geo_reference,
+            "offset": None if header.offset is None else {
+                "x": header.offset.x, "y": header.offset.y, "z": header.offset.z, "hdg": header.offset.hdg}}
+
+
+def _check_options(eps: float, tile: float) -> None:
+    if not (eps > 0 and np.isfinite(eps)):
+        raise ValueError("eps must be a positive number of metres")
+    if not (tile > 0 and np.isfinite(tile)):
+        raise ValueError("tile must be a positive number of metres")
+
+
+def _origin(origin) -> np.ndarray:
     origin = np.asarray(origin, dtype=np.float64).reshape(3) + 0.0
     if not np.all(np.isfinite(origin)):
         raise ValueError("origin must be three finite numbers")
-    parts = collision_parts(surface, scene.solids, origin, tile)
+    return origin
 
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=".collision-", dir=out_dir))
-    try:
-        (staging / "tiles").mkdir()
-        bodies, tiles = [], {}
+
+class _WorldWriter:
+    """collision/ written tile by tile into a staging folder, put in place whole at the end."""
+
+    def __init__(self, out_dir, grid: Grid, eps: float, georeference: dict):
+        self.out_dir = Path(out_dir)
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        self.grid, self.eps, self.georeference = grid, eps, georeference
+        self.origin = np.asarray(grid.origin, dtype=np.float64)
+        self.staging = Path(tempfile.mkdtemp(prefix=".collision-", dir=self.out_dir))
+        (self.staging / "tiles").mkdir()
+        self.bodies, self.tiles = [], {}
+
+    def add(self, index, parts: list[BodyPart]) -> None:
         for part in parts:
             relative = f"tiles/{part.name}.obj"
-            local = part.mesh.vertices - origin
+            local = part.mesh.vertices - self.origin
             data = obj_text(part.name, local, part.mesh.faces,
                             f"{FORMAT}: {part.group} of {part.tile}, metres, pybullet = OpenDRIVE local - origin"
                             ).encode("ascii")
-            (staging / relative).write_bytes(data)
-            bodies.append({
+            (self.staging / relative).write_bytes(data)
+            self.bodies.append({
                 "name": part.name, "tile": part.tile, "group": part.group, "file": relative,
                 "sha256": hashlib.sha256(data).hexdigest(),
                 "vertices": len(part.mesh.vertices), "triangles": len(part.mesh.faces),
                 "kinds": _kind_counts(part.mesh),
                 "bounds": [np.round(local.min(axis=0), 4).tolist(), np.round(local.max(axis=0), 4).tolist()],
             })
-            entry = tiles.setdefault(part.tile, {
-                "name": part.tile, "index": list(part.index),
-                "bounds": [part.index[0] * tile, part.index[1] * tile, (part.index[0] + 1) * tile,
-                           (part.index[1] + 1) * tile],
+            entry = self.tiles.setdefault(part.tile, {
+                "name": part.tile, "index": list(part.index), "bounds": self.grid.relative_bounds(part.index),
                 "bodies": []})
             entry["bodies"].append(part.name)
-        geo = odr.header
+
+    def finish(self, solids: dict) -> dict:
         world = {
             "format": FORMAT, "version": FORMAT_VERSION,
-            "origin": origin.tolist(),
+            "origin": self.origin.tolist(),
             "frame": "x east, y north, z up, metres (OpenDRIVE local axes); pybullet = OpenDRIVE local - origin",
-            "eps": eps, "tile_size": tile,
-            "georeference": {"proj": geo.geo_reference,
-                             "offset": None if geo.offset is None else {
-                                 "x": geo.offset.x, "y": geo.offset.y, "z": geo.offset.z, "hdg": geo.offset.hdg}},
+            "eps": self.eps, "tile_size": self.grid.size,
+            "georeference": self.georeference,
             "groups": {"road": list(DRIVABLE_KINDS), "roadside": "other road-surface kinds",
                        "curb": "solids", "object": "solids", "signal": "solids", "building": "solids"},
-            "tiles": list(tiles.values()),
-            "bodies": bodies,
-            "solids": {**scene.counts(), "skipped": list(scene.skipped)},
-            "totals": {"tiles": len(tiles), "bodies": len(bodies),
-                       "vertices": int(sum(b["vertices"] for b in bodies)),
-                       "triangles": int(sum(b["triangles"] for b in bodies))},
+            "tiles": list(self.tiles.values()),
+            "bodies": self.bodies,
+            "solids": solids,
+            "totals": {"tiles": len(self.tiles), "bodies": len(self.bodies),
+                       "vertices": int(sum(b["vertices"] for b in self.bodies)),
+                       "triangles": int(sum(b["triangles"] for b in self.bodies))},
         }
-        (staging / "world.json").write_text(json.dumps(world, indent=1) + "\n", encoding="utf-8")
-        _swap_in(staging, out_dir / "collision")
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
-    return world
+        (self.staging / "world.json").write_text(json.dumps(world, indent=1) + "\n", encoding="utf-8")
+        _swap_in(self.staging, self.out_dir / "collision")
+        return world
+
+    def abandon(self) -> None:
+        shutil.rmtree(self.staging, ignore_errors=True)
 
 
 def _swap_in(staging: Path, target: Path) -> None:

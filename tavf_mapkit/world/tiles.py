@@ -1,4 +1,5 @@
-"""Cut meshes into collision bodies on a square grid around the world origin.
+"""Cut meshes into collision bodies on the tile grid of the exported meshes (``mesh.tiles.Grid``: squares
+centred on the origin, the same squares and names as mesh/tiles and mesh/labelled).
 
 A face belongs to the tile that holds its centroid; a solid stays whole in the tile of its bounding-box centre.
 A body with more than MAX_BODY_VERTICES vertices is split into quarters until it fits, so every body also fits
@@ -12,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tavf_mapkit.mesh.labelled import LabelledMesh
+from tavf_mapkit.mesh.tiles import tile_name
 
 MAX_BODY_VERTICES = 100_000
 
@@ -23,15 +25,6 @@ class BodyPart:
     index: tuple[int, int]
     group: str      # road, roadside, curb, object, signal, building
     mesh: LabelledMesh
-
-
-def tile_name(i: int, j: int) -> str:
-    return f"tile_{i:+d}_{j:+d}"
-
-
-def tile_of(points_xy: np.ndarray, origin_xy: np.ndarray, size: float) -> np.ndarray:
-    """(n, 2) int64 tile indices of points in OpenDRIVE local coordinates."""
-    return np.floor((points_xy - origin_xy) / size).astype(np.int64)
 
 
 def split_faces(mesh: LabelledMesh, tiles: np.ndarray, group: str) -> list[BodyPart]:
@@ -46,7 +39,7 @@ def split_faces(mesh: LabelledMesh, tiles: np.ndarray, group: str) -> list[BodyP
     for k, (i, j) in enumerate(keys):
         mask = np.zeros(len(mesh.faces), dtype=bool)
         mask[order[bounds[k]:bounds[k + 1]]] = True
-        name = tile_name(int(i), int(j))
+        name = tile_name((int(i), int(j)))
         parts.extend(_fit(BodyPart(f"{name}_{group}", name, (int(i), int(j)), group, mesh.select(mask))))
     return parts
 

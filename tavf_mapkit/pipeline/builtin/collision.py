@@ -3,6 +3,8 @@ with the OSM input's buildings when the build started from OSM. See docs/collisi
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from tavf_mapkit.pipeline.context import BuildContext
 from tavf_mapkit.pipeline.stages import Stage, StageOutput, register_stage
 
@@ -14,10 +16,11 @@ DEFAULT_TILE = 100.0
 class CollisionStage(Stage):
     inputs = ("xodr",)
     optional_inputs = ("source", "mesh")
-    version = "7"  # 2: reuses the mesh stage's surface at the same eps; 3: curbs around junctions (reverted in 4);
+    version = "8"  # 2: reuses the mesh stage's surface at the same eps; 3: curbs around junctions (reverted in 4);
     # 5: junction curbs along the connecting lanes' sides, clear of the swept path of a car on each driving lane;
     # 6: reuses the mesh stage's scene solids when they were made at the same eps from the same input;
-    # 7: a laneOffset step at a section boundary no longer bends the section's end
+    # 7: a laneOffset step at a section boundary no longer bends the section's end; 8: tile by tile from the
+    # mesh stage's labelled tiles, on the mesh grid (tiles centred on the origin, as mesh/tiles)
     description = "pybullet collision world: road surface, curbs, objects, signals, buildings (tiled OBJ)"
 
     def options(self, context: BuildContext) -> dict:
@@ -25,16 +28,24 @@ class CollisionStage(Stage):
                 "tile": context.metres("collision", "tile", DEFAULT_TILE)}
 
     def run(self, context: BuildContext) -> StageOutput:
-        from tavf_mapkit.world import build_collision_world
+        import tempfile
+
+        from tavf_mapkit.world.build import build_collision_world_from_tiles
 
         options = self.options(context)
-        odr = context.opendrive()
         osm_path = context.osm_source()
         meshed = _MeshStageOutput(context)
-        surface = meshed.surface(options["eps"])
-        scene = meshed.solids(options["eps"], osm_path)
-        world = build_collision_world(odr, context.folder, eps=options["eps"], osm_path=osm_path,
-                                      tile=options["tile"], origin=meshed.origin(), surface=surface, scene=scene)
+        labelled = meshed.labelled(options["eps"], options["tile"], osm_path)
+        if labelled is not None:
+            # the mesh stage's labelled tiles: the world is cut from exactly the meshes it exported
+            world = build_collision_world_from_tiles(labelled, context.folder)
+        else:
+            from tavf_mapkit.mesh.tiled import LABELLED, write_tiled_mesh
+
+            with tempfile.TemporaryDirectory(prefix=".collision-mesh-", dir=context.folder) as scratch:
+                write_tiled_mesh(context.opendrive(), scratch, options["eps"], tile_size=options["tile"],
+                                 osm_path=osm_path, preview=False, exports=False, origin=meshed.origin())
+                world = build_collision_world_from_tiles(Path(scratch) / LABELLED, context.folder)
         totals = world["totals"]
         solids = world["solids"]
         if solids["skipped"]:
@@ -44,13 +55,13 @@ class CollisionStage(Stage):
                  "triangles": totals["triangles"], "origin": world["origin"],
                  "solids": {kind: solids[kind] for kind in ("curb", "object", "signal", "building")},
                  # what came from the mesh stage instead of being made again
-                 "reused": [name for name, part in (("surface", surface), ("solids", scene)) if part is not None]}
+                 "reused": ["surface", "solids"] if labelled is not None else []}
         return StageOutput(files={"collision": "collision"}, facts=facts)
 
 
 class _MeshStageOutput:
-    """What the mesh stage left for this one (mesh/mesh.json and its files); every part None when absent,
-    unreadable or made differently (other eps, other buildings input), so the stage makes it itself."""
+    """What the mesh stage left for this one (mesh/mesh.json and its labelled tiles); None when absent,
+    unreadable or made differently (other eps or tile size, other buildings input), so the stage makes it itself."""
 
     def __init__(self, context: BuildContext):
         import json
@@ -71,27 +82,29 @@ class _MeshStageOutput:
         except (KeyError, TypeError, ValueError):
             return None
 
-    def surface(self, eps: float):
-        """The labelled road surface, when it was made at ``eps`` (saves meshing twice)."""
-        from tavf_mapkit.mesh.labelled import LabelledMesh
-
-        return self._load("surface", LabelledMesh.load_npz, eps=eps)
-
-    def solids(self, eps: float, osm_path):
-        """The scene solids, when they were made at ``eps`` with the same buildings input."""
-        from tavf_mapkit.mesh.solids import SceneSolids
-
-        return self._load("scene_solids", SceneSolids.load_npz, eps=eps,
-                          buildings_from=None if osm_path is None else osm_path.name)
-
-    def _load(self, key: str, load, eps: float, **same):
+    def labelled(self, eps: float, tile: float, osm_path) -> Path | None:
+        """mesh/labelled, when it was made at ``eps`` on tiles of ``tile`` metres, with solids, from the same
+        buildings input, and every file it lists is there and readable."""
         import zipfile
 
+        import numpy as np
+
+        from tavf_mapkit.mesh.tiled import read_labelled_index
+
         try:
-            saved = self.record[key]
-            if float(saved["eps"]) != eps or any(saved[name] != value for name, value in same.items()):
+            saved = self.record["labelled"]
+            if (float(saved["eps"]) != eps or float(saved["tile_size"]) != tile or saved["solids"] is not True
+                    or saved["buildings_from"] != (None if osm_path is None else osm_path.name)):
                 return None
-            return load(self.folder / saved["file"])
-        # a damaged file is made again, not trusted: BadZipFile (zip), EOFError / ValueError (arrays)
+            folder = self.folder / saved["folder"]
+            index = read_labelled_index(folder)
+            if float(index["eps"]) != eps or float(index["tile_size"]) != tile:
+                return None
+            for name in index["tiles"]:
+                # a damaged file is made again, not trusted: BadZipFile (zip), EOFError / ValueError (arrays)
+                with np.load(folder / f"{name}.npz", allow_pickle=False) as data:
+                    for key in data.files:
+                        data[key]
+            return folder
         except (OSError, ValueError, KeyError, TypeError, IndexError, EOFError, zipfile.BadZipFile):
             return None

@@ -1,6 +1,7 @@
 """Stage "mesh": road surface, junction surfaces, road marks and scene solids as tiled glTF (or OBJ) in mesh/,
 with mesh/mesh.json, a top-view preview that is also copied to report/mesh_preview.png, and the labelled
-surface and solids (surface.npz, solids.npz) the collision stage reuses. See docs/mesh.md."""
+surface and solids per tile (mesh/labelled/) the collision stage reuses. Made tile by tile, in memory bounded by
+the tile, not the map (mesh/tiled.py). See docs/mesh.md."""
 
 from __future__ import annotations
 
@@ -15,9 +16,11 @@ from tavf_mapkit.pipeline.stages import Stage, StageOutput, register_stage
 class MeshStage(Stage):
     inputs = ("xodr",)
     optional_inputs = ("source",)
-    version = "7"  # 2: also writes mesh/surface.npz; 3: curbs around junctions (reverted in 4); 5: junction curbs
+    version = "8"  # 2: also writes mesh/surface.npz; 3: curbs around junctions (reverted in 4); 5: junction curbs
     # along the connecting lanes' sides, clear of the swept path of a car following each driving lane;
-    # 6: also writes mesh/solids.npz; 7: a laneOffset step at a section boundary no longer bends the section's end
+    # 6: also writes mesh/solids.npz; 7: a laneOffset step at a section boundary no longer bends the section's end;
+    # 8: tiled (mesh/labelled/ instead of surface.npz and solids.npz; faces in canonical unit order; junction
+    # surfaces and curbs per junction cluster)
     description = "road surface, junctions and road marks (and scene solids) as tiled glTF + preview"
 
     def options(self, context: BuildContext) -> dict:

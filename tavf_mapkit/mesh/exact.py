@@ -1,0 +1,58 @@
+"""numpy helpers whose answer for an element never depends on the other elements computed with it.
+
+The tiled mesher meshes a map in batches and must get the same bits for a road whichever batch it is in, so
+sums over many roads at once (one cumsum over every run, a BLAS product, a combined float key) are out.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def search_pairs(major: np.ndarray, minor: np.ndarray, q_major: np.ndarray, q_minor: np.ndarray,
+                 side: str) -> np.ndarray:
+    """``np.searchsorted`` on (major, minor) pairs sorted lexicographically, for query pairs: exact, with no
+    combined floating-point key."""
+    n = len(major)
+    # on ties the query goes after the samples for side="right", before them for side="left"
+    tag = np.concatenate([np.full(n, 0 if side == "right" else 1), np.full(len(q_major), 1 if side == "right" else 0)])
+    order = np.lexsort((tag, np.concatenate([minor, q_minor]), np.concatenate([major, q_major])))
+    is_sample = order < n
+    before = np.cumsum(is_sample) - is_sample  # samples ahead of each sorted position
+    out = np.empty(len(q_major), dtype=np.int64)
+    out[order[~is_sample] - n] = before[~is_sample]
+    return out
+
+
+def run_cumsum(values: np.ndarray, run: np.ndarray) -> np.ndarray:
+    """Cumulative sums restarting at every run (runs are contiguous). Each run's sums are those of the run
+    alone, to the bit -- one cumsum over all runs would carry every earlier run's rounding into the next."""
+    values = np.asarray(values, dtype=float)
+    out = np.empty(len(values))
+    if not len(values):
+        return out
+    starts = np.flatnonzero(np.r_[True, run[1:] != run[:-1]])
+    counts = np.diff(np.r_[starts, len(values)])
+    bucket = np.ceil(np.log2(counts)).astype(np.int64)  # runs of similar length share a padded table
+    for b in np.unique(bucket).tolist():
+        rows = np.flatnonzero(bucket == b)
+        width = int(counts[rows].max())
+        column = np.arange(width)
+        valid = column[None, :] < counts[rows][:, None]
+        index = starts[rows][:, None] + column[None, :]
+        table = np.zeros((len(rows), width))
+        table[valid] = values[index[valid]]
+        out[index[valid]] = np.cumsum(table, axis=1)[valid]
+    return out
+
+
+def run_interp(x: np.ndarray, run: np.ndarray, xp: np.ndarray, fp: np.ndarray, xp_run: np.ndarray) -> np.ndarray:
+    """Linear interpolation of (xp, fp) at x, each x inside the points of its own run (``xp_run``, ascending
+    xp within a run); x lies between the run's first and last xp."""
+    first = np.searchsorted(xp_run, run, side="left")
+    last = np.searchsorted(xp_run, run, side="right") - 1
+    j = np.clip(search_pairs(xp_run, xp, run, x, "right") - 1, first, np.maximum(last - 1, first))
+    k = np.minimum(j + 1, last)
+    dx = xp[k] - xp[j]
+    slope = np.divide(fp[k] - fp[j], dx, out=np.zeros(len(x)), where=dx > 0)
+    return fp[j] + slope * (x - xp[j])

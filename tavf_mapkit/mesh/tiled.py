@@ -1,0 +1,560 @@
+"""The tiled mesher: a map of any size in memory bounded by the tile, not the map.
+
+The map is meshed in batches of units (``mesh.units``: roads outside junctions, junction clusters), grouped by
+the tile grid. What is made of a unit depends on that unit alone, so the result never depends on how units are
+batched. Four passes, each holding one batch or a few tiles at a time:
+
+1. per batch: adaptive samples, lane and junction surfaces, road marks, and the solids of single roads
+   (raised-lane curbs, objects, signals); the pieces are spilled to disk by tile (``mesh.spill``), with a key
+   per face and vertex that gives their place in the whole map's canonical order;
+2. per junction cluster: its curbs, from the spilled surface of the tiles around it;
+3. per group of buildings: their passages and ground heights, from the spilled surface around them (the ground
+   search widens until the nearest surface vertices are certain);
+4. the origin is now known (the middle of all vertices' bounds): the pieces are moved to their tiles of the
+   final grid (``mesh.tiles``), and each tile is merged in canonical order and written -- glTF / OBJ, the
+   labelled tile the collision stage reads, its strokes on the preview -- keeping only small per-tile figures.
+
+Files come out the same as exporting the whole map's meshes at once (``export.export_meshes``).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import tempfile
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from tavf_mapkit.fileutil import write_bytes_atomic, write_text_atomic
+from tavf_mapkit.mesh.export import check_export_options, mesh_summary, write_materials, write_tile
+from tavf_mapkit.mesh.labelled import KIND_CODE, SURFACE_KINDS, LabelledMesh, npz_bytes
+from tavf_mapkit.mesh.materials import mark_material
+from tavf_mapkit.mesh.spill import ChunkStore, Keyed, from_arrays, keyed_by_group, merge
+from tavf_mapkit.mesh.tiles import Grid, face_centroids, faces_by_tile, origin_of_bounds, solid_centres, tile_name
+
+#: metres of lane per batch: memory of a batch grows with it (about 0.3 MB per km), time hardly at all
+BATCH_WORK = 100_000.0
+LABELLED = "labelled"
+TILE_CACHE = 256          # spilled tiles kept merged in memory while curbs and buildings look around
+CLUSTER_GROUP = 64        # junction clusters whose surroundings are sampled together
+CURBS, JUNCTION_CURBS, OBJECTS, SIGNALS, BUILDINGS = range(5)  # producers, in the order of the scene solids
+
+
+@dataclass
+class _Tally:
+    """What the passes keep of the whole map: bounds, counts, facts, the junction clusters' boxes."""
+
+    low: np.ndarray | None = None
+    high: np.ndarray | None = None
+    kinds: np.ndarray = field(default_factory=lambda: np.zeros(len(SURFACE_KINDS), dtype=np.int64))
+    marks: int = 0
+    solid_faces: int = 0
+    materials: set = field(default_factory=set)
+    max_deviation: float = 0.0
+    discontinuities: int = 0
+    unresolved: int = 0
+    junctions: int = 0
+    reach: float = 0.0                                       # farthest surface corner from its face's centroid
+    cluster_box: dict = field(default_factory=dict)          # unit -> box of its junction faces
+    solid_counts: dict = field(default_factory=lambda: {k: 0 for k in ("curb", "object", "signal", "building")})
+    skipped: list = field(default_factory=list)              # (key, line)
+
+    def extend(self, vertices: np.ndarray) -> None:
+        if not len(vertices):
+            return
+        low, high = vertices[:, :2].min(axis=0), vertices[:, :2].max(axis=0)
+        self.low = low if self.low is None else np.minimum(self.low, low)
+        self.high = high if self.high is None else np.maximum(self.high, high)
+
+
+def write_tiled_mesh(odr, folder: str | Path, eps: float, fmt: str = "glb", tile_size: float = 100.0,
+                     osm_path: Path | None = None, solids: bool = True, preview: bool = True,
+                     exports: bool = True, batch_work: float = BATCH_WORK, extra: dict | None = None,
+                     origin=None) -> dict:
+    """Mesh the map into ``folder``: tiles/ and road marks (unless ``exports`` is off), labelled/ (surface and
+    solids per tile, for the collision world), mesh.json and preview.png. Returns mesh.json's content.
+    ``origin``: the origin to use instead of the middle of the meshes' bounds (e.g. another stage's)."""
+    from tavf_mapkit.mesh.units import mesh_units
+
+    check_export_options(fmt, tile_size)
+    if not (eps > 0 and np.isfinite(eps)):
+        raise ValueError("eps must be a positive number of metres")
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    arrays = odr.arrays
+    # implausible roads are refused before anything is sampled, the first of them by road order (as meshing the
+    # whole map at once would)
+    arrays.budget.check_roads(arrays.section_road[arrays.section_end - arrays.section_s0 > 1e-9])
+    units = mesh_units(odr)
+    spill = Path(tempfile.mkdtemp(prefix=".spill-", dir=folder))
+    stores = {name: ChunkStore(spill / f"{name}.bin") for name in ("surface", "marks", "solids", "whole")}
+    tally = _Tally()
+    try:
+        for batch in units.batches(tile_size, batch_work):
+            _mesh_batch(odr, units, units.roads_of_units(batch), eps, tile_size, stores, tally, solids, exports)
+        if solids:
+            surface = _SurfaceTiles(stores["surface"], tile_size, tally.reach)
+            _junction_curbs(odr, units, surface, stores, tally)
+            _buildings(odr, osm_path, surface, stores, tally, tile_size)
+        origin = origin_of_bounds(tally.low, tally.high) if origin is None else tuple(float(v) for v in origin)
+        grid = Grid(origin, float(tile_size))
+        summary = _write_tiles(odr, folder, fmt, grid, stores, tally, spill, preview, exports, eps, osm_path,
+                               solids, extra or {})
+    finally:
+        for store in stores.values():
+            store.close()
+        shutil.rmtree(spill, ignore_errors=True)
+    return summary
+
+
+# -- pass 1: batches ---------------------------------------------------------------------------------------
+
+def _mesh_batch(odr, units, roads, eps, tile_size, stores, tally, solids: bool, marks: bool) -> None:
+    from tavf_mapkit.mesh.marks import road_marks
+    from tavf_mapkit.mesh.surface import build_road_surface
+
+    surface = build_road_surface(odr, eps, units=units, roads=roads)
+    samples = surface.samples
+    tally.max_deviation = max(tally.max_deviation, samples.max_deviation)
+    tally.discontinuities += samples.discontinuities
+    tally.unresolved += samples.unresolved
+    tally.junctions += len(surface.junction_footprints)
+    mesh = surface.mesh
+    keyed = keyed_by_group(mesh, units.road_unit[mesh.road_index])
+    if len(mesh.faces):
+        corners = mesh.vertices[mesh.faces][:, :, :2]
+        tally.reach = max(tally.reach, float(np.max(np.linalg.norm(
+            corners - corners.mean(axis=1, keepdims=True), axis=2))))
+        junction = mesh.kind == KIND_CODE["junction"]
+        if np.any(junction):
+            _cluster_boxes(keyed, tally)
+    _spill(stores["surface"], keyed, tile_size, tally, "lanes")
+    if marks:
+        painted = road_marks(odr, eps, samples, roads=roads)
+        _spill(stores["marks"], keyed_by_group(painted, units.road_unit[painted.road_index]), tile_size, tally,
+               "marks")
+    if solids:
+        _road_solids(odr, roads, keyed.mesh, eps, stores, tally, tile_size)
+
+
+def _cluster_boxes(keyed: Keyed, tally: _Tally) -> None:
+    mesh = keyed.mesh
+    junction = np.flatnonzero(mesh.kind == KIND_CODE["junction"])
+    unit = keyed.face_key[junction, 0]
+    corners = mesh.vertices[mesh.faces[junction]][:, :, :2]
+    low, high = corners.min(axis=1), corners.max(axis=1)
+    for u in np.unique(unit).tolist():
+        mine = unit == u
+        tally.cluster_box[u] = np.concatenate([low[mine].min(axis=0), high[mine].max(axis=0)])
+
+
+def _spill(store: ChunkStore, keyed: Keyed, tile_size: float, tally: _Tally, layer: str) -> None:
+    """Chunks of a keyed mesh by spill tile (floor(centroid / tile): the final grid is not known yet)."""
+    mesh = keyed.mesh
+    if not len(mesh.faces):
+        return
+    tally.extend(mesh.vertices)
+    if layer == "lanes":
+        tally.kinds += np.bincount(mesh.kind.astype(np.int64), minlength=len(SURFACE_KINDS))
+    elif layer == "marks":
+        tally.marks += len(mesh.faces)
+    else:
+        tally.solid_faces += len(mesh.faces)
+    cell = np.floor(face_centroids(mesh)[:, :2] / tile_size).astype(np.int64)
+    for index, faces in faces_by_tile(cell).items():
+        store.add(index, keyed.select(faces).arrays())
+
+
+def _road_solids(odr, roads, surface: LabelledMesh, eps, stores, tally, tile_size) -> None:
+    """Curbs of raised lanes, objects and signals: each road's own, keyed (producer, road, number)."""
+    from tavf_mapkit.mesh.lanes import raised_lane_rows
+    from tavf_mapkit.mesh.solid_curbs import curb_solids
+    from tavf_mapkit.mesh.solid_objects import object_solids
+    from tavf_mapkit.mesh.solid_signals import signal_solids
+
+    arrays = odr.arrays
+    raised = set(np.unique(arrays.section_road[arrays.lane_section[raised_lane_rows(arrays)]]).tolist())
+    order = np.argsort(surface.road_index, kind="stable")
+    bounds = np.searchsorted(surface.road_index[order], [roads, roads + 1])
+    made, skipped = [], []
+    for k, road in enumerate(np.asarray(roads).tolist()):
+        producers = []
+        if road in raised:
+            faces = np.sort(order[bounds[0][k]:bounds[1][k]])
+            producers.append((CURBS, lambda faces=faces: curb_solids(odr, surface.select(faces))))
+        if odr.roads[road].objects:
+            producers.append((OBJECTS, lambda road=road: object_solids(odr, eps, [road])))
+        if odr.roads[road].signals:
+            producers.append((SIGNALS, lambda road=road: signal_solids(odr, eps, [road])))
+        for producer, make in producers:
+            built, missing = make()
+            made += [((producer, road, n), solid) for n, solid in enumerate(built)]
+            skipped += [((producer, road, n), line) for n, line in enumerate(missing)]
+    _spill_solids(made, stores, tally, tile_size)
+    tally.skipped += skipped
+
+
+def _spill_solids(made: list, stores, tally: _Tally, tile_size: float) -> None:
+    """Solids keyed (producer, primary, number): their faces by tile of face (the exported meshes), and each
+    solid whole by tile of its centre (the collision world)."""
+    if not made:
+        return
+    keys = np.array([key for key, _ in made], dtype=np.int64)
+    solids = [solid for _, solid in made]
+    for solid in solids:
+        tally.solid_counts[solid.kind] += 1
+    meshes = [solid.mesh for solid in solids]
+    face_key = np.concatenate([np.column_stack([np.repeat(keys[k:k + 1], len(m.faces), axis=0),
+                                                np.arange(len(m.faces))]) for k, m in enumerate(meshes)])
+    vertex_key = np.concatenate([np.column_stack([np.repeat(keys[k:k + 1], len(m.vertices), axis=0),
+                                                  np.arange(len(m.vertices))]) for k, m in enumerate(meshes)])
+    _spill(stores["solids"], Keyed(LabelledMesh.concatenate(meshes), face_key, vertex_key), tile_size, tally,
+           "solids")
+    cell = np.floor(solid_centres(meshes) / tile_size).astype(np.int64)
+    for index, members in faces_by_tile(cell).items():
+        stores["whole"].add(index, _solid_arrays([solids[k] for k in members], keys[members]))
+
+
+def _solid_arrays(solids: list, keys: np.ndarray) -> dict:
+    from tavf_mapkit.mesh.solids import SceneSolids
+
+    return {**SceneSolids(tuple(solids), ()).arrays(), "solid_key": keys}
+
+
+# -- passes 2 and 3: what needs the surface around it ------------------------------------------------------------
+
+class _SurfaceTiles:
+    """The spilled road surface, merged per spill tile on demand (a bounded cache)."""
+
+    def __init__(self, store: ChunkStore, tile_size: float, reach: float):
+        self.store = store
+        self.size = tile_size
+        self.reach = reach
+        self.cache: OrderedDict = OrderedDict()
+        keys = np.array(store.keys(), dtype=np.int64).reshape(-1, 2)
+        self.low = keys.min(axis=0) if len(keys) else np.zeros(2, dtype=np.int64)
+        self.high = keys.max(axis=0) if len(keys) else np.zeros(2, dtype=np.int64)
+
+    def _tile(self, index) -> Keyed | None:
+        if index in self.cache:
+            self.cache.move_to_end(index)
+            return self.cache[index]
+        merged = merge([from_arrays(data, False) for data in self.store.get(index)])
+        self.cache[index] = merged
+        if len(self.cache) > TILE_CACHE:
+            self.cache.popitem(last=False)
+        return merged
+
+    def cells(self, box, grow: float) -> tuple[np.ndarray, np.ndarray]:
+        """First and last spill tile holding faces that may come within ``grow`` of ``box``."""
+        lo = np.floor((np.asarray(box[:2]) - grow - self.reach) / self.size).astype(np.int64)
+        hi = np.floor((np.asarray(box[2:]) + grow + self.reach) / self.size).astype(np.int64)
+        return lo, hi
+
+    def square(self, lo, hi) -> Keyed | None:
+        """The surface of the spill tiles lo..hi (inclusive), in canonical order."""
+        lo, hi = np.maximum(lo, self.low), np.minimum(hi, self.high)
+        parts = []
+        for i in range(int(lo[0]), int(hi[0]) + 1):
+            for j in range(int(lo[1]), int(hi[1]) + 1):
+                if (i, j) in self.store:
+                    part = self._tile((i, j))
+                    if part is not None:
+                        parts.append(part)
+        return merge(parts)
+
+    def vertices(self, lo, hi) -> np.ndarray:
+        """(n, 3) every surface vertex of the spill tiles lo..hi (inclusive), each once."""
+        lo, hi = np.maximum(lo, self.low), np.minimum(hi, self.high)
+        points, keys = [], []
+        for i in range(int(lo[0]), int(hi[0]) + 1):
+            for j in range(int(lo[1]), int(hi[1]) + 1):
+                if (i, j) in self.store:
+                    part = self._tile((i, j))
+                    if part is not None:
+                        points.append(part.mesh.vertices)
+                        keys.append(part.vertex_key)
+        if not points:
+            return np.zeros((0, 3))
+        keys = np.concatenate(keys)
+        _, first = np.unique(keys, axis=0, return_index=True)
+        return np.concatenate(points)[np.sort(first)]
+
+    def covers_all(self, lo, hi) -> bool:
+        return bool(np.all(lo <= self.low) and np.all(hi >= self.high))
+
+
+def _junction_curbs(odr, units, surface: _SurfaceTiles, stores, tally: _Tally) -> None:
+    """Pass 2: the curbs of every junction cluster, from the surface around it; clusters in groups that share
+    one sampling of the lanes around them (a cluster's curbs depend on its own surroundings only)."""
+    from tavf_mapkit.mesh.solid_junction_curbs import (
+        CONTEXT_REACH,
+        ROAD_REACH,
+        CurbSurroundings,
+        cluster_curb_solids,
+    )
+
+    junction_rank = {j: k for k, j in enumerate(sorted(junction.id for junction in odr.junctions))}
+    clusters = sorted(tally.cluster_box, key=lambda u: tuple(np.floor(tally.cluster_box[u][[1, 0]] / surface.size)))
+    for start in range(0, len(clusters), CLUSTER_GROUP):
+        group = clusters[start:start + CLUSTER_GROUP]
+        roads = np.unique(np.concatenate([units.roads_near(tally.cluster_box[u], ROAD_REACH) for u in group]))
+        around = CurbSurroundings(odr, roads)
+        for unit in group:
+            _cluster_curbs(odr, units, unit, surface, around, junction_rank, stores, tally, CONTEXT_REACH)
+
+
+def _cluster_curbs(odr, units, unit, surface, around, junction_rank, stores, tally, reach) -> None:
+    """The curbs of one cluster, keyed (producer, junction rank, number in the junction)."""
+    from tavf_mapkit.mesh.solid_junction_curbs import cluster_curb_solids
+
+    context = surface.square(*surface.cells(tally.cluster_box[unit], reach))
+    mask = (context.mesh.kind == KIND_CODE["junction"]) & (context.face_key[:, 0] == unit)
+    made, count = [], {}
+    for (junction, _, _), solid, line in cluster_curb_solids(odr, context.mesh, mask, units, around):
+        number = count[junction] = count.get(junction, -1) + 1
+        key = (JUNCTION_CURBS, junction_rank.get(junction, len(junction_rank)), number)
+        if solid is not None:
+            made.append((key, solid))
+        else:
+            tally.skipped.append((key, line))
+    _spill_solids(made, stores, tally, surface.size)
+
+
+def _buildings(odr, osm_path, surface: _SurfaceTiles, stores, tally: _Tally, tile_size: float) -> None:
+    """Pass 3: OSM buildings, in groups by block of tiles, each cut where it stands on a drivable lane and
+    standing on the lowest of its nearest road-surface vertices."""
+    from tavf_mapkit.mesh.kinds import DRIVABLE_KINDS
+    from tavf_mapkit.mesh.solid_buildings import building_parts, extrude_building, ground_point, passage_pieces
+    from tavf_mapkit.mesh.solid_kit import SolidError
+    from tavf_mapkit.mesh.units import BLOCK
+
+    if osm_path is None:
+        return
+    if odr.georeference is None:
+        tally.skipped.append(((BUILDINGS, -2, 0), f"{osm_path}: no geoReference in the OpenDRIVE, buildings "
+                                                   "cannot be placed"))
+        return
+    parts, skipped = building_parts(odr, osm_path)
+    tally.skipped += [((BUILDINGS, -1, n), line) for n, line in enumerate(skipped)]
+    if not parts:
+        return
+    drivable = [KIND_CODE[k] for k in DRIVABLE_KINDS]
+    boxes = np.array([part[1].bounds for part in parts])
+    block = np.floor(0.5 * (boxes[:, :2] + boxes[:, 2:]) / (tile_size * BLOCK)).astype(np.int64)
+    for _, members in sorted(faces_by_tile(block[:, [1, 0]]).items()):
+        box = np.concatenate([boxes[members, :2].min(axis=0), boxes[members, 2:].max(axis=0)])
+        # only drivable faces that reach into the group's box can cut a passage
+        context = surface.square(*surface.cells(box, 0.0))
+        mesh = None
+        if context is not None:
+            plan = context.mesh.vertices[context.mesh.faces][:, :, :2]
+            near = (np.all(plan.min(axis=1) <= box[2:], axis=1) & np.all(plan.max(axis=1) >= box[:2], axis=1)
+                    & np.isin(context.mesh.kind, drivable))
+            mesh = context.mesh.select(np.flatnonzero(near))
+        pieces = passage_pieces([parts[k] for k in members], mesh, members.tolist())
+        points = np.array([ground_point(polygon) for _, _, polygon, _ in pieces]).reshape(-1, 2)
+        heights = _ground_heights(surface, points)
+        made, previous, count = [], None, 0
+        for (number, where, polygon, extent), z in zip(pieces, heights.tolist()):
+            count = count + 1 if number == previous else 0  # the pieces of a part come one after another
+            previous = number
+            key = (BUILDINGS, number, count)
+            try:
+                made.append((key, extrude_building(polygon, extent, lambda x, y, z=z: z, where)))
+            except SolidError as error:
+                tally.skipped.append((key, f"{where}: {error}"))
+        _spill_solids(made, stores, tally, tile_size)
+
+
+def _ground_heights(surface: _SurfaceTiles, points: np.ndarray) -> np.ndarray:
+    """``solid_buildings.ground_heights`` of the whole map's surface at plan points, from the spilled tiles.
+    The k nearest vertices among loaded tiles are the map's when they are closer than anything not loaded can
+    be (a vertex lies within ``reach`` of its face's centroid); their distance bounds where the true ones are,
+    so one more, larger square settles every other point."""
+    from scipy.spatial import cKDTree
+
+    from tavf_mapkit.mesh.solid_buildings import GROUND_NEIGHBOURS
+
+    out = np.zeros(len(points))
+    todo = np.arange(len(points))
+    if not len(points):
+        return out
+    grow = surface.size
+    box = np.concatenate([points.min(axis=0), points.max(axis=0)])
+    while len(todo):
+        lo, hi = surface.cells(box, grow)
+        vertices = surface.vertices(lo, hi)
+        complete = surface.covers_all(lo, hi)
+        if not len(vertices):
+            if complete:
+                return out  # no surface at all: the ground is 0
+            grow = 3 * grow + surface.size
+            continue
+        k = min(GROUND_NEIGHBOURS, len(vertices))
+        q = points[todo]
+        distance, index = cKDTree(vertices[:, :2]).query(q, k=k)
+        distance, index = distance.reshape(len(todo), k), index.reshape(len(todo), k)
+        inside = np.minimum(q - lo * surface.size, (hi + 1) * surface.size - q).min(axis=1) - surface.reach
+        settled = complete | ((k == GROUND_NEIGHBOURS) & (distance.max(axis=1) <= inside))
+        out[todo[settled]] = vertices[index[settled], 2].min(axis=1)
+        if k == GROUND_NEIGHBOURS and np.any(~settled):
+            # the true nearest lie within the distance found: a square that holds those discs settles them
+            need = distance[~settled].max(axis=1)[:, None]
+            box = np.concatenate([(q[~settled] - need).min(axis=0), (q[~settled] + need).max(axis=0)])
+            grow = 0.0
+        else:
+            grow = 3 * grow + surface.size
+        todo = todo[~settled]
+    return out
+
+
+# -- pass 4: the final grid ----------------------------------------------------------------------------------
+
+def _write_tiles(odr, folder: Path, fmt, grid: Grid, stores, tally: _Tally, spill: Path, preview: bool,
+                 exports: bool, eps: float, osm_path, solids: bool, extra: dict) -> dict:
+    from tavf_mapkit.mesh.marks import MARK_COLOURS
+    from tavf_mapkit.mesh.preview import PreviewCanvas, group_code
+
+    final = {name: ChunkStore(spill / f"final-{name}.bin") for name in stores}
+    try:
+        for name in ("surface", "marks", "solids"):
+            for index in stores[name].keys():
+                merged = merge([from_arrays(data, name == "marks") for data in stores[name].get(index)])
+                for tile, faces in faces_by_tile(grid.tile_of(merged.mesh)).items():
+                    final[name].add(tile, merged.select(faces).arrays())
+        for index in stores["whole"].keys():
+            for data in stores["whole"].get(index):
+                centres = _chunk_centres(data)
+                for tile, members in faces_by_tile(grid.tile_of_points(centres)).items():
+                    final["whole"].add(tile, _subset_solids(data, members))
+        canvas = PreviewCanvas(tally.low, tally.high) if preview else None
+        (folder / LABELLED).mkdir(exist_ok=True)
+        if exports:
+            (folder / "tiles").mkdir(exist_ok=True)
+        tile_entries, labelled, indices = [], [], []
+        every = sorted(set().union(*(set(store.keys()) for store in final.values())))
+        for index in every:
+            layers = [(layer, merge([from_arrays(data, name == "marks") for data in final[name].get(index)]))
+                      for layer, name in (("lanes", "surface"), ("marks", "marks"), ("solids", "solids"))]
+            members = []
+            for layer, keyed in layers:
+                if keyed is None:
+                    continue
+                mesh = keyed.mesh
+                codes = mesh.colour if layer == "marks" else mesh.kind
+                for code in np.unique(codes).tolist():
+                    material = mark_material(MARK_COLOURS[code]) if layer == "marks" else SURFACE_KINDS[code]
+                    members.append((layer, material, mesh.select(np.flatnonzero(codes == code))))
+            tally.materials.update(material for _, material, _ in members)
+            if members and exports:
+                tile_entries.append(write_tile(folder, fmt, grid, index, members))
+            if canvas is not None:
+                for layer, material, mesh in members:
+                    canvas.paint(layer, material, group_code(layer, material), mesh)
+            whole = final["whole"].get(index)
+            if layers[0][1] is not None or whole:
+                labelled.append(_write_labelled(folder, index, layers[0][1], whole))
+                indices.append([int(index[0]), int(index[1])])
+    finally:
+        for store in final.values():
+            store.close()
+    if exports and fmt == "obj":
+        write_materials(folder, tally.materials)
+    kinds = tally.kinds
+    junction, curb = int(kinds[KIND_CODE["junction"]]), int(kinds[KIND_CODE["curb"]])
+    surface_faces = int(kinds.sum())
+    triangles = {"lanes": surface_faces - junction - curb, "junctions": junction, "curb_faces": curb,
+                 "marks": tally.marks, "solids": tally.solid_faces,
+                 "total": surface_faces + tally.marks + tally.solid_faces}
+    skipped = [line for _, line in sorted(tally.skipped, key=lambda item: item[0])]
+    buildings_from = None if osm_path is None else Path(osm_path).name
+    from tavf_mapkit.world.build import world_georeference
+
+    index_json = {"eps": eps, "tile_size": grid.size, "origin": list(grid.origin), "tiles": labelled,
+                  "indices": indices, "georeference": world_georeference(odr.header),
+                  "solids": solids, "solid_counts": tally.solid_counts, "skipped": skipped,
+                  "buildings_from": buildings_from}
+    write_text_atomic(folder / LABELLED / "index.json", json.dumps(index_json, indent=1) + "\n")
+    facts = {
+        "eps": eps,
+        "deviation": {
+            "max_m": round(tally.max_deviation, 6),
+            "method": "largest distance between mesh and exact OpenDRIVE point at the same (s, t), at 1/4, 1/2 "
+                      "and 3/4 of every segment on every lane border and quad diagonal",
+            "discontinuities": tally.discontinuities,
+            "unresolved_segments": tally.unresolved,
+        },
+        "junctions": tally.junctions,
+        "mark_colours": list(MARK_COLOURS),
+        "solids": solids,
+        # the labelled surface and the scene solids per tile, so the collision stage can reuse them
+        "labelled": {"folder": LABELLED, "eps": eps, "tile_size": grid.size, "solids": solids,
+                     "buildings_from": buildings_from},
+        **extra,
+    }
+    summary = mesh_summary(fmt, grid, tile_entries, triangles, tally.materials, facts)
+    if canvas is not None:
+        canvas.save(folder / "preview.png")
+        summary["preview"] = "preview.png"
+    write_text_atomic(folder / "mesh.json", json.dumps(summary, indent=2) + "\n")
+    return summary
+
+
+def _chunk_centres(data: dict) -> np.ndarray:
+    ends = np.cumsum(data["solid_vertices"])
+    starts = ends - data["solid_vertices"]
+    vertices = data["vertices"]
+    return np.array([0.5 * (vertices[a:b].min(axis=0) + vertices[a:b].max(axis=0))[:2]
+                     for a, b in zip(starts.tolist(), ends.tolist())]).reshape(-1, 2)
+
+
+def _subset_solids(data: dict, members: np.ndarray) -> dict:
+    from tavf_mapkit.mesh.solids import SceneSolids
+
+    solids = SceneSolids.from_arrays(data).solids
+    return _solid_arrays([solids[k] for k in members.tolist()], data["solid_key"][members])
+
+
+def _write_labelled(folder: Path, index, surface: Keyed | None, whole: list[dict]) -> str:
+    """labelled/tile_I_J.npz: the tile's road surface (faces by centroid) and its solids (by centre), both in
+    canonical order."""
+    from tavf_mapkit.mesh.solids import SceneSolids
+
+    arrays = {}
+    if surface is not None:
+        mesh = surface.mesh
+        arrays.update({f"surface_{name}": getattr(mesh, name) for name in LabelledMesh._ARRAYS})
+    if whole:
+        solids, keys = [], []
+        for data in whole:
+            solids += SceneSolids.from_arrays(data).solids
+            keys.append(data["solid_key"])
+        keys = np.concatenate(keys)
+        order = np.lexsort(keys.T[::-1])
+        arrays.update({f"solids_{name}": value for name, value in
+                       SceneSolids(tuple(solids[k] for k in order.tolist()), ()).arrays().items()
+                       if name != "skipped"})
+    name = tile_name(index)
+    write_bytes_atomic(folder / LABELLED / f"{name}.npz", npz_bytes(arrays))
+    return name
+
+
+def read_labelled_index(folder: str | Path) -> dict:
+    """labelled/index.json: eps, tile size, origin, tile names and indices, solid counts, skipped parts."""
+    return json.loads((Path(folder) / "index.json").read_text(encoding="utf-8"))
+
+
+def read_labelled_tile(path: str | Path):
+    """(LabelledMesh surface or None, SceneSolids) of one labelled tile."""
+    from tavf_mapkit.mesh.solids import SceneSolids
+
+    with np.load(path, allow_pickle=False) as data:
+        arrays = {name: data[name] for name in data.files}
+    surface = None
+    if "surface_faces" in arrays:
+        surface = LabelledMesh(*(arrays.get(f"surface_{name}") for name in LabelledMesh._ARRAYS))
+    return surface, SceneSolids.from_arrays(arrays, prefix="solids_")
