@@ -125,9 +125,10 @@ def border_shift(old, new) -> float:
         line = old_road.reference_line
         index = line.geometry_index(s_old)
         x, y, heading, _ = line.table.evaluate(index, (s_old - line.table.s[index]) * rate)
-        z = old_road.elevation(s_old)
-        slope = old_road.elevation.derivative(s_old) / rate  # dz per metre of curve
-        roll = old_road.superelevation(s_old)
+        before_frame = (x, y, old_road.elevation(s_old), heading,
+                        old_road.elevation.derivative(s_old) / rate,  # dz per metre of curve
+                        old_road.superelevation(s_old))
+        after_frame = new_road.reference_point(s_new)
         old_section = old_road.section_index(s_old)
         for k in np.unique(old_section):
             mask = old_section == k
@@ -136,8 +137,8 @@ def border_shift(old, new) -> float:
             t_new = new_road.lane_borders(new_k, s_new[mask])
             assert set(t_old) == set(t_new)
             for lane, t in t_old.items():
-                before = surface_points(x[mask], y[mask], z[mask], heading[mask], slope[mask], roll[mask], t)
-                after = new_road.surface_point(s_new[mask], t_new[lane])
+                before = surface_points(*(v[mask] for v in before_frame), t)
+                after = surface_points(*(v[mask] for v in after_frame), t_new[lane])
                 worst = max(worst, float(np.linalg.norm(before - after, axis=1).max()))
     return worst
 
