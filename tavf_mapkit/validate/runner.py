@@ -22,8 +22,9 @@ def _strip_namespace(root) -> None:
 
 
 def validate_file(path: str | Path, rules=None, strict: bool = False,
-                  schema_dir: str | Path | None = None) -> ValidationReport:
+                  schema_dir: str | Path | None = None, odr=None) -> ValidationReport:
     """Validate an OpenDRIVE file. ``rules``: ids or families (``"geometry,topology.contact-gap"``), None = all.
+    ``odr``: the file already loaded (``load_opendrive(path)``), so a caller that has it does not read it twice.
 
     Raises InputError (exit code 2) only when the file is missing or not well-formed XML; everything else,
     including a document the reader refuses, becomes findings.
@@ -36,7 +37,7 @@ def validate_file(path: str | Path, rules=None, strict: bool = False,
     _strip_namespace(root)
     context = ValidationContext(name, None, root, source.line_offset, schema_dir)
     try:
-        context.odr = load_opendrive(path)
+        context.odr = load_opendrive(path) if odr is None else odr
     except InputError as error:
         context.notes["reader_error"] = error
     header = root.find("header")

@@ -56,7 +56,7 @@ class CheckStage(Stage):
             raise StageError(f"the OpenDRIVE is unreadable: {error}") from None
         files: dict[str, str] = {}
         results: dict = {"file": xodr.name}
-        results["validate"] = self._validate(context, xodr, files)
+        results["validate"] = self._validate(context, xodr, files, odr)
         results["georeference"] = _roundtrip(odr)
         reference = section.get("reference_network_path")
         if reference is not None:
@@ -98,13 +98,13 @@ class CheckStage(Stage):
             facts["gnss_matched_fraction"] = match["matched_fraction"]
         return StageOutput(files=files, facts=facts)
 
-    def _validate(self, context, xodr, files) -> dict | None:
+    def _validate(self, context, xodr, files, odr) -> dict | None:
         try:
             from tavf_mapkit.validate import validate_file
         except ImportError as error:
             context.note(f"validate not available: {error}")
             return None
-        report = validate_file(str(xodr))
+        report = validate_file(str(xodr), odr=odr)  # the map loaded above: not read a second time
         context.output_path("report/validate.json").write_text(json.dumps(report.to_dict(), indent=2) + "\n",
                                                                encoding="utf-8")
         files["validate_report"] = "report/validate.json"
