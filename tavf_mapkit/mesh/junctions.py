@@ -25,6 +25,7 @@ from tavf_mapkit.mesh.planindex import PlanIndex
 
 CLOSE_SLITS = 0.02   # m: gaps narrower than twice this between connecting lanes are closed
 MIN_HOLE = 1.0       # m^2: smaller holes in the union are filled (numerical leftovers, not islands)
+SNAP = 1e-9          # m: grid of the overlay fallback when GEOS's floating-point overlay fails
 
 
 @dataclass(frozen=True, eq=False)
@@ -60,11 +61,28 @@ def lane_footprints(sampling, include: np.ndarray | None = None) -> tuple[np.nda
     return lane[starts], polygons
 
 
+def _union(geometries):
+    """``shapely.union_all``, robust: where GEOS's floating-point overlay fails on nearly coincident edges
+    (TopologyException: non-noded intersection), the union is made on a SNAP grid instead."""
+    try:
+        return shapely.union_all(geometries)
+    except shapely.errors.GEOSException:
+        return shapely.union_all(geometries, grid_size=SNAP)
+
+
+def _overlay(operation, a, b):
+    """A shapely overlay (difference, intersection) with the same fallback as ``_union``."""
+    try:
+        return operation(a, b)
+    except shapely.errors.GEOSException:
+        return operation(a, b, grid_size=SNAP)
+
+
 def _polygonal(geometry):
     """The polygonal part of a geometry (make_valid and unions may add lines and points)."""
     parts = shapely.get_parts(geometry)
     parts = parts[np.isin(shapely.get_type_id(parts), (3, 6))]
-    return shapely.union_all(parts) if len(parts) else shapely.Polygon()
+    return _union(parts) if len(parts) else shapely.Polygon()
 
 
 def _fill_small_holes(geometry, min_area: float):
@@ -72,7 +90,7 @@ def _fill_small_holes(geometry, min_area: float):
     for polygon in shapely.get_parts(geometry):
         holes = [ring for ring in polygon.interiors if shapely.Polygon(ring).area >= min_area]
         out.append(shapely.Polygon(polygon.exterior, holes))
-    return shapely.union_all(out) if out else shapely.Polygon()
+    return _union(out) if out else shapely.Polygon()
 
 
 def junction_footprints(odr, sampling, raised_rows: np.ndarray) -> dict[str, object]:
@@ -87,12 +105,14 @@ def junction_footprints(odr, sampling, raised_rows: np.ndarray) -> dict[str, obj
     out = {}
     for junction_id in sorted(set(junction) - {""}):
         mine = junction == junction_id
-        flat = _polygonal(shapely.union_all(polygons[mine & ~raised]))
+        flat = _polygonal(_union(polygons[mine & ~raised]))
         if flat.is_empty:
             continue
         flat = flat.buffer(CLOSE_SLITS, join_style="mitre").buffer(-CLOSE_SLITS, join_style="mitre")
+        if not flat.is_valid:  # GEOS's inward mitre buffer can cross itself at a needle-thin spike
+            flat = shapely.make_valid(flat)
         if np.any(mine & raised):
-            flat = flat.difference(_polygonal(shapely.union_all(polygons[mine & raised])))
+            flat = _overlay(shapely.difference, flat, _polygonal(_union(polygons[mine & raised])))
         flat = _fill_small_holes(_polygonal(flat), MIN_HOLE)
         if not flat.is_empty:
             out[junction_id] = flat
@@ -112,7 +132,7 @@ def triangulate_on_grid(footprint, cell: float, budget=None, road: int = 0) -> n
     nx, ny = int(nx), int(ny)
     gx, gy = np.meshgrid(x0 + cell * np.arange(nx), y0 + cell * np.arange(ny))
     boxes = shapely.box(gx.ravel(), gy.ravel(), gx.ravel() + cell, gy.ravel() + cell)
-    pieces = shapely.intersection(footprint, boxes)
+    pieces = _overlay(shapely.intersection, footprint, boxes)
     pieces = shapely.get_parts(pieces[~shapely.is_empty(pieces)])
     pieces = pieces[shapely.get_type_id(pieces) == 3]
     if not len(pieces):
