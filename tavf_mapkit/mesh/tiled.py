@@ -34,6 +34,7 @@ from tavf_mapkit.mesh.labelled import KIND_CODE, SURFACE_KINDS, LabelledMesh, np
 from tavf_mapkit.mesh.materials import mark_material
 from tavf_mapkit.mesh.spill import ChunkStore, Keyed, from_arrays, keyed_by_group, merge
 from tavf_mapkit.mesh.tiles import Grid, face_centroids, faces_by_tile, origin_of_bounds, solid_centres, tile_name
+from tavf_mapkit.mesh.units import BLOCK
 
 #: metres of lane per batch: memory of a batch grows with it (about 0.3 MB per km), time hardly at all
 BATCH_WORK = 100_000.0
@@ -101,8 +102,8 @@ def write_tiled_mesh(odr, folder: str | Path, eps: float, fmt: str = "glb", tile
             _buildings(odr, osm_path, surface, stores, tally, tile_size)
         origin = origin_of_bounds(tally.low, tally.high) if origin is None else tuple(float(v) for v in origin)
         grid = Grid(origin, float(tile_size))
-        summary = _write_tiles(odr, folder, fmt, grid, stores, tally, spill, preview, exports, eps, osm_path,
-                               solids, extra or {})
+        summary = _write_tiles(odr, folder, fmt, grid, stores, tally, preview, exports, eps, osm_path, solids,
+                               extra or {})
     finally:
         for store in stores.values():
             store.close()
@@ -330,7 +331,6 @@ def _buildings(odr, osm_path, surface: _SurfaceTiles, stores, tally: _Tally, til
     from tavf_mapkit.mesh.kinds import DRIVABLE_KINDS
     from tavf_mapkit.mesh.solid_buildings import building_parts, extrude_building, ground_point, passage_pieces
     from tavf_mapkit.mesh.solid_kit import SolidError
-    from tavf_mapkit.mesh.units import BLOCK
 
     if osm_path is None:
         return
@@ -414,54 +414,44 @@ def _ground_heights(surface: _SurfaceTiles, points: np.ndarray) -> np.ndarray:
 
 # -- pass 4: the final grid ----------------------------------------------------------------------------------
 
-def _write_tiles(odr, folder: Path, fmt, grid: Grid, stores, tally: _Tally, spill: Path, preview: bool,
-                 exports: bool, eps: float, osm_path, solids: bool, extra: dict) -> dict:
+def _write_tiles(odr, folder: Path, fmt, grid: Grid, stores, tally: _Tally, preview: bool, exports: bool,
+                 eps: float, osm_path, solids: bool, extra: dict) -> dict:
     from tavf_mapkit.mesh.marks import MARK_COLOURS
     from tavf_mapkit.mesh.preview import PreviewCanvas, group_code
 
-    final = {name: ChunkStore(spill / f"final-{name}.bin") for name in stores}
-    try:
-        for name in ("surface", "marks", "solids"):
-            for index in stores[name].keys():
-                merged = merge([from_arrays(data, name == "marks") for data in stores[name].get(index)])
-                for tile, faces in faces_by_tile(grid.tile_of(merged.mesh)).items():
-                    final[name].add(tile, merged.select(faces).arrays())
-        for index in stores["whole"].keys():
-            for data in stores["whole"].get(index):
-                centres = _chunk_centres(data)
-                for tile, members in faces_by_tile(grid.tile_of_points(centres)).items():
-                    final["whole"].add(tile, _subset_solids(data, members))
-        canvas = PreviewCanvas(tally.low, tally.high) if preview else None
-        (folder / LABELLED).mkdir(exist_ok=True)
-        if exports:
-            (folder / "tiles").mkdir(exist_ok=True)
-        tile_entries, labelled, indices = [], [], []
-        every = sorted(set().union(*(set(store.keys()) for store in final.values())))
-        for index in every:
-            layers = [(layer, merge([from_arrays(data, name == "marks") for data in final[name].get(index)]))
-                      for layer, name in (("lanes", "surface"), ("marks", "marks"), ("solids", "solids"))]
-            members = []
-            for layer, keyed in layers:
-                if keyed is None:
-                    continue
-                mesh = keyed.mesh
-                codes = mesh.colour if layer == "marks" else mesh.kind
-                for code in np.unique(codes).tolist():
-                    material = mark_material(MARK_COLOURS[code]) if layer == "marks" else SURFACE_KINDS[code]
-                    members.append((layer, material, mesh.select(np.flatnonzero(codes == code))))
-            tally.materials.update(material for _, material, _ in members)
-            if members and exports:
-                tile_entries.append(write_tile(folder, fmt, grid, index, members))
-            if canvas is not None:
-                for layer, material, mesh in members:
-                    canvas.paint(layer, material, group_code(layer, material), mesh)
-            whole = final["whole"].get(index)
-            if layers[0][1] is not None or whole:
-                labelled.append(_write_labelled(folder, index, layers[0][1], whole))
-                indices.append([int(index[0]), int(index[1])])
-    finally:
-        for store in final.values():
-            store.close()
+    layers_of = {name: _Regrid(stores[name], grid, name) for name in stores}
+    canvas = PreviewCanvas(tally.low, tally.high) if preview else None
+    (folder / LABELLED).mkdir(exist_ok=True)
+    if exports:
+        (folder / "tiles").mkdir(exist_ok=True)
+    tile_entries, labelled, indices = [], [], []
+    # block by block, so that the spill tiles around a block are read once; files and lists do not depend on it
+    every = set().union(*(regrid.tiles() for regrid in layers_of.values()))
+    for index in sorted(every, key=lambda t: (t[1] // BLOCK, t[0] // BLOCK, t[1], t[0])):
+        layers = [(layer, merge(layers_of[name].parts(index)))
+                  for layer, name in (("lanes", "surface"), ("marks", "marks"), ("solids", "solids"))]
+        members = []
+        for layer, keyed in layers:
+            if keyed is None:
+                continue
+            mesh = keyed.mesh
+            codes = mesh.colour if layer == "marks" else mesh.kind
+            for code in np.unique(codes).tolist():
+                material = mark_material(MARK_COLOURS[code]) if layer == "marks" else SURFACE_KINDS[code]
+                members.append((layer, material, mesh.select(np.flatnonzero(codes == code))))
+        tally.materials.update(material for _, material, _ in members)
+        if members and exports:
+            tile_entries.append(write_tile(folder, fmt, grid, index, members))
+        if canvas is not None:
+            for layer, material, mesh in members:
+                canvas.paint(layer, material, group_code(layer, material), mesh)
+        whole = layers_of["whole"].parts(index)
+        if layers[0][1] is not None or whole:
+            labelled.append(_write_labelled(folder, index, layers[0][1], whole))
+            indices.append([int(index[0]), int(index[1])])
+    tile_entries.sort(key=lambda entry: tuple(entry["index"]))
+    order = sorted(range(len(indices)), key=lambda k: tuple(indices[k]))
+    labelled, indices = [labelled[k] for k in order], [indices[k] for k in order]
     if exports and fmt == "obj":
         write_materials(folder, tally.materials)
     kinds = tally.kinds
@@ -502,6 +492,56 @@ def _write_tiles(odr, folder: Path, fmt, grid: Grid, stores, tally: _Tally, spil
         summary["preview"] = "preview.png"
     write_text_atomic(folder / "mesh.json", json.dumps(summary, indent=2) + "\n")
     return summary
+
+
+class _Regrid:
+    """The spilled pieces of one store seen through the final grid: each spill tile is read and merged once
+    (kept in a bounded cache) and its faces -- or whole solids -- grouped by the final tile they belong to.
+    A final tile takes its pieces from the few spill tiles around it."""
+
+    def __init__(self, store: ChunkStore, grid: Grid, name: str):
+        self.store, self.grid, self.name = store, grid, name
+        self.cache: OrderedDict = OrderedDict()
+        self.sources: dict = {}  # final tile -> spill tiles that may hold pieces of it
+        shift = np.asarray(grid.origin[:2]) / grid.size
+        for key in store.keys():
+            # a centroid in spill tile p lies in [p, p + 1) tiles from 0; one tile more on each side for rounding
+            low = np.floor(np.asarray(key) - shift + 0.5).astype(np.int64) - 1
+            high = np.floor(np.asarray(key) + 1 - shift + 0.5).astype(np.int64) + 1
+            for i in range(int(low[0]), int(high[0]) + 1):
+                for j in range(int(low[1]), int(high[1]) + 1):
+                    self.sources.setdefault((i, j), []).append(key)
+
+    def tiles(self) -> set:
+        return set(self.sources)
+
+    def _load(self, key):
+        if key in self.cache:
+            self.cache.move_to_end(key)
+            return self.cache[key]
+        chunks = self.store.get(key)
+        if self.name == "whole":
+            groups = {}
+            for data in chunks:
+                for tile, members in faces_by_tile(self.grid.tile_of_points(_chunk_centres(data))).items():
+                    groups.setdefault(tile, []).append(_subset_solids(data, members))
+            entry = (None, groups)
+        else:
+            merged = merge([from_arrays(data, self.name == "marks") for data in chunks])
+            entry = (merged, faces_by_tile(self.grid.tile_of(merged.mesh)) if merged is not None else {})
+        self.cache[key] = entry
+        if len(self.cache) > TILE_CACHE:
+            self.cache.popitem(last=False)
+        return entry
+
+    def parts(self, tile) -> list:
+        """Keyed pieces (or, for whole solids, solid arrays) of a final tile."""
+        out = []
+        for key in self.sources.get(tile, ()):
+            merged, groups = self._load(key)
+            if tile in groups:
+                out.extend(groups[tile]) if merged is None else out.append(merged.select(groups[tile]))
+        return out
 
 
 def _chunk_centres(data: dict) -> np.ndarray:
