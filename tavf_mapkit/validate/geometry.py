@@ -18,6 +18,8 @@ from tavf_mapkit.validate.registry import rule
 
 _GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(16)
 
+ARC_LENGTH_CHUNK = 20_000  # curves per pass where each needs an arc-length table (bounded memory)
+
 
 def _flat_geometries(odr):
     """(road, geometry) pairs in NetworkArrays' geometry-table order."""
@@ -30,7 +32,11 @@ def _joints(ctx):
     if "value" not in cache:
         table = ctx.odr.arrays.geometries
         first = np.flatnonzero(table.group[:-1] == table.group[1:]) if len(table) > 1 else np.zeros(0, dtype=int)
-        x, y, heading, _ = table.evaluate(first, table.length[first])
+        x, y, heading = np.empty(len(first)), np.empty(len(first)), np.empty(len(first))
+        for start in range(0, len(first), ARC_LENGTH_CHUNK):  # a curve's end costs its arc-length table
+            part = first[start:start + ARC_LENGTH_CHUNK]
+            x[start:start + len(part)], y[start:start + len(part)], heading[start:start + len(part)], _ = \
+                table.evaluate(part, table.length[part])
         cache["value"] = (table, first, x, y, heading)
     return cache["value"]
 
@@ -103,16 +109,20 @@ def param_poly3_arc_lengths(table, rows: np.ndarray) -> np.ndarray:
 
     Computed here rather than taken from the evaluator: the validator checks the file, not our reading of it.
     """
-    params = table.params[rows]
-    p_end = np.where(params[:, 8] > 0.5, 1.0, table.length[rows])
     panels = 16
     edges = np.linspace(0.0, 1.0, panels + 1)
     nodes = (0.5 * (edges[1:] - edges[:-1])[:, None] * (_GL_NODES + 1.0) + edges[:-1, None]).ravel()
     weights = (0.5 * (edges[1:] - edges[:-1])[:, None] * _GL_WEIGHTS).ravel()
-    p = p_end[:, None] * nodes[None, :]
-    du = params[:, 1:2] + p * (2.0 * params[:, 2:3] + 3.0 * params[:, 3:4] * p)
-    dv = params[:, 5:6] + p * (2.0 * params[:, 6:7] + 3.0 * params[:, 7:8] * p)
-    return np.hypot(du, dv) @ weights * p_end
+    out = np.empty(len(rows))
+    for start in range(0, len(rows), ARC_LENGTH_CHUNK):  # 256 nodes a curve: bounded memory on large maps
+        part = rows[start:start + ARC_LENGTH_CHUNK]
+        params = table.params[part]
+        p_end = np.where(params[:, 8] > 0.5, 1.0, table.length[part])
+        p = p_end[:, None] * nodes[None, :]
+        du = params[:, 1:2] + p * (2.0 * params[:, 2:3] + 3.0 * params[:, 3:4] * p)
+        dv = params[:, 5:6] + p * (2.0 * params[:, 6:7] + 3.0 * params[:, 7:8] * p)
+        out[start:start + len(part)] = (np.hypot(du, dv) * weights).sum(axis=1) * p_end
+    return out
 
 
 @rule("geometry.param-poly3-length", WARNING, tolerance=0.01, unit="m",

@@ -5,11 +5,15 @@ from __future__ import annotations
 from pathlib import Path
 
 from tavf_mapkit.errors import InputError, MapkitError
+from tavf_mapkit.memory import return_freed_memory
 from tavf_mapkit.validate.context import ValidationContext
 from tavf_mapkit.validate.finding import ERROR, WARNING, Finding
 from tavf_mapkit.validate.registry import select_rules
 from tavf_mapkit.validate.report import ValidationReport
 from tavf_mapkit.xmlsafe import parse_safe, read_xml_source
+
+#: structure rules that report what the reader made of the document, so they run after the map is loaded
+AFTER_LOAD = frozenset({"structure.readable"})
 
 
 def _strip_namespace(root) -> None:
@@ -29,22 +33,45 @@ def validate_file(path: str | Path, rules=None, strict: bool = False,
     Raises InputError (exit code 2) only when the file is missing or not well-formed XML; everything else,
     including a document the reader refuses, becomes findings.
     """
+    return validate_and_load(path, rules, strict, schema_dir, odr)[0]
+
+
+def validate_and_load(path: str | Path, rules=None, strict: bool = False, schema_dir: str | Path | None = None,
+                      odr=None):
+    """``validate_file``, and the map it read: (report, OpenDriveMap or None, the reader's InputError or None).
+
+    The document tree and the map are never held at once (for a large map each is about a gigabyte): the
+    structure rules run on the tree, the tree is let go, then the map is loaded (unless given) for the rules
+    that need it. ``structure.readable`` reports the reader's verdict, so it runs after the load.
+    """
     from tavf_mapkit.opendrive import load_opendrive
 
-    name = str(path)
     source = read_xml_source(path)
-    root = parse_safe(source)
-    _strip_namespace(root)
-    context = ValidationContext(name, None, root, source.line_offset, schema_dir)
+    context = ValidationContext(str(path), None, parse_safe(source), source.line_offset, schema_dir)
+    del source  # the context holds the only reference to the document tree, so it can be let go
+    _strip_namespace(context.root)
+    header = context.root.find("header")
+    version = None if header is None else f"{header.get('revMajor', '?')}.{header.get('revMinor', '?')}"
+    del header
+    rules = list(select_rules(rules))
+    available = {rule.id: True if rule.needs == "xml" else None for rule in rules}
+    found = {rule.id: _check(context, rule, strict) for rule in rules
+             if rule.needs == "xml" and rule.id not in AFTER_LOAD}
+    context.root = None
+    return_freed_memory()  # the tree's memory is not reused by the map's objects unless it goes back first
+    error = None
     try:
         context.odr = load_opendrive(path) if odr is None else odr
-    except InputError as error:
-        context.notes["reader_error"] = error
-    header = root.find("header")
-    version = None
-    if header is not None:
-        version = f"{header.get('revMajor', '?')}.{header.get('revMinor', '?')}"
-    return _run(context, select_rules(rules), strict, version)
+    except InputError as reader_error:
+        error = context.notes["reader_error"] = reader_error
+    for rule in rules:
+        if rule.id in AFTER_LOAD:
+            found[rule.id] = _check(context, rule, strict)
+        elif rule.needs != "xml":
+            available[rule.id] = context.odr is not None
+            if available[rule.id]:
+                found[rule.id] = _check(context, rule, strict)
+    return _report(context, rules, found, available, strict, version), context.odr, error
 
 
 def validate_map(odr, rules=None, strict: bool = False) -> ValidationReport:
@@ -54,21 +81,32 @@ def validate_map(odr, rules=None, strict: bool = False) -> ValidationReport:
 
 
 def _run(context: ValidationContext, rules, strict: bool, version: str | None) -> ValidationReport:
-    findings, ran, skipped = [], [], []
-    for rule in rules:
-        available = context.root is not None if rule.needs == "xml" else context.odr is not None
-        if not available:
-            skipped.append(rule.id)
-            continue
-        ran.append(rule.id)
-        severity = ERROR if strict and rule.severity == WARNING else rule.severity
-        try:
-            for hit in rule.check(context, rule):
-                findings.append(Finding(rule.id, severity, hit.road, hit.lane, hit.s, hit.line, hit.message))
-        except MapkitError as error:
-            # a rule that would sample an implausible road (or over the map's budget) reports why it could not
-            # check, and the other rules still run: a validator's job is to list what is wrong
-            findings.append(Finding(rule.id, ERROR, error.road, None, None, error.line,
-                                    f"not checked: {error.message}"))
+    rules = list(rules)
+    available = {rule.id: context.root is not None if rule.needs == "xml" else context.odr is not None
+                 for rule in rules}
+    found = {rule.id: _check(context, rule, strict) for rule in rules if available[rule.id]}
+    return _report(context, rules, found, available, strict, version)
+
+
+def _report(context: ValidationContext, rules, found: dict, available: dict, strict: bool,
+            version: str | None) -> ValidationReport:
+    """The report of the rules that ran, findings in catalogue order whatever order the rules ran in."""
+    findings = [finding for rule in rules for finding in found.get(rule.id, ())]
+    ran = [rule.id for rule in rules if available[rule.id]]
+    skipped = [rule.id for rule in rules if not available[rule.id]]
     notes = {key: value for key, value in context.notes.items() if not key.startswith("_") and key != "reader_error"}
     return ValidationReport(context.name, tuple(findings), tuple(ran), strict, version, notes, tuple(skipped))
+
+
+def _check(context: ValidationContext, rule, strict: bool) -> list:
+    findings = []
+    severity = ERROR if strict and rule.severity == WARNING else rule.severity
+    try:
+        for hit in rule.check(context, rule):
+            findings.append(Finding(rule.id, severity, hit.road, hit.lane, hit.s, hit.line, hit.message))
+    except MapkitError as error:
+        # a rule that would sample an implausible road (or over the map's budget) reports why it could not
+        # check, and the other rules still run: a validator's job is to list what is wrong
+        findings.append(Finding(rule.id, ERROR, error.road, None, None, error.line,
+                                f"not checked: {error.message}"))
+    return findings

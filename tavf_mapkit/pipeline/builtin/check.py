@@ -45,18 +45,14 @@ class CheckStage(Stage):
         return {"check": context.section("check"), "repairs": _repairs(context)}
 
     def run(self, context: BuildContext) -> StageOutput:
-        from tavf_mapkit.opendrive import load_opendrive
-
         section = context.section("check")
         thresholds = section.get("thresholds", {}) or {}
         xodr = context.artifacts["xodr"]
-        try:
-            odr = load_opendrive(xodr)
-        except InputError as error:
-            raise StageError(f"the OpenDRIVE is unreadable: {error}") from None
         files: dict[str, str] = {}
         results: dict = {"file": xodr.name}
-        results["validate"] = self._validate(context, xodr, files, odr)
+        # validation reads the file once for both its document rules and its map rules, never holding both
+        # (each is about a gigabyte for a large map); the map it loaded serves the checks below
+        results["validate"], odr = self._validate(context, xodr, files)
         results["georeference"] = _roundtrip(odr)
         reference = section.get("reference_network_path")
         if reference is not None:
@@ -98,17 +94,28 @@ class CheckStage(Stage):
             facts["gnss_matched_fraction"] = match["matched_fraction"]
         return StageOutput(files=files, facts=facts)
 
-    def _validate(self, context, xodr, files, odr) -> dict | None:
+    def _validate(self, context, xodr, files) -> tuple[dict | None, object]:
+        """(validation summary, the loaded map); a StageError when the file cannot be read as OpenDRIVE."""
+        from tavf_mapkit.opendrive import load_opendrive
+
         try:
-            from tavf_mapkit.validate import validate_file
+            from tavf_mapkit.validate.runner import validate_and_load
         except ImportError as error:
             context.note(f"validate not available: {error}")
-            return None
-        report = validate_file(str(xodr), odr=odr)  # the map loaded above: not read a second time
+            try:
+                return None, load_opendrive(xodr)
+            except InputError as unreadable:
+                raise StageError(f"the OpenDRIVE is unreadable: {unreadable}") from None
+        try:
+            report, odr, unreadable = validate_and_load(str(xodr))
+        except InputError as error:  # not even well-formed XML
+            raise StageError(f"the OpenDRIVE is unreadable: {error}") from None
+        if unreadable is not None:
+            raise StageError(f"the OpenDRIVE is unreadable: {unreadable}")
         context.output_path("report/validate.json").write_text(json.dumps(report.to_dict(), indent=2) + "\n",
                                                                encoding="utf-8")
         files["validate_report"] = "report/validate.json"
-        return {**report.summary, **_findings_by_rule(report)}
+        return {**report.summary, **_findings_by_rule(report)}, odr
 
     def _compare(self, context, xodr, reference, files) -> dict:
         from tavf_mapkit.accuracy.compare import compare_networks
