@@ -209,7 +209,7 @@ def test_asam_checker_runs_every_rule_of_opendrive_1_8_on_the_sample_build(sampl
     assert set(result["levels"]) <= {"warning"}, result["first"]
 
 
-@pytest.mark.xfail(strict=True, reason="issue 14: netconvert writes consecutive <line> geometries that could "
-                   "be one (ASAM performance.avoid_redundant_info, 12 warnings on the sample build)")
 def test_asam_checker_finds_no_issue_in_the_sample_build_read_as_1_8(sample_build_as_1_8):
+    """netconvert writes consecutive <line> geometries that are one line (performance.avoid_redundant_info, 12
+    warnings on the sample build before the build merged them: opendrive/repair_redundant.py)."""
     assert sample_build_as_1_8["total"] == 0, sample_build_as_1_8["first"]

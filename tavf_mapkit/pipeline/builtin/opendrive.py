@@ -88,12 +88,14 @@ def _repair_steps(context: BuildContext) -> list:
     from tavf_mapkit.opendrive.repair_contacts import repair_contacts
     from tavf_mapkit.opendrive.repair_controllers import repair_controllers
     from tavf_mapkit.opendrive.repair_lengths import repair_geometry_lengths
+    from tavf_mapkit.opendrive.repair_redundant import repair_redundant
 
     extent = _network_extent(context)
     steps = [lambda odr: repair_untrusted_geometry(odr, extent)]
     if repair_enabled(context):
         steps += [
             repair_geometry_lengths,  # @length = arc length; everything along s moved with it
+            repair_redundant,  # consecutive lines that are one line, records that repeat the one before
             repair_contacts,  # connecting roads meet the lanes they link (or their link goes)
             repair_controllers,  # one <controller> per id
         ]

@@ -1,0 +1,146 @@
+"""Repair redundant records: consecutive <line> geometries that are one line, and cubic records that repeat the
+record before them.
+
+netconvert writes a straight edge whose shape has collinear inner points as one <line> per segment (the sample
+build: 12 such pairs). Nothing is wrong with the road, but ASAM's quality checker (performance.avoid_redundant_info,
+OpenDRIVE 1.7 on) warns about each pair, as it does about an elevation, superelevation, lane offset, lane width or
+border record that only continues the polynomial of the record before it. The validator's
+``geometry.redundant-record`` finds the same records (``redundant_lines``, ``redundant_records``).
+
+The repair merges a line into the line before it when both have the same heading (within ``HEADING_TOLERANCE``)
+and the merged line passes within ``POSITION_TOLERANCE`` of both ends of the second, so no point of the
+reference line moves by more than that; s is unchanged (the merged line ends where the second did). A record
+that continues the one before it is dropped: the one before it now governs its range, with values equal within
+``EQUATION_TOLERANCE``. A file with nothing redundant is returned unchanged, so the repair is idempotent.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from tavf_mapkit.opendrive.cubic import CubicProfile
+from tavf_mapkit.opendrive.geometry import GeometryKind
+from tavf_mapkit.opendrive.refline import ReferenceLine
+from tavf_mapkit.opendrive.repair import Repair
+
+#: Repair.action of this repair
+MERGED_RECORDS = "merged redundant records"
+
+#: ASAM's tolerance: headings (rad) and polynomial coefficients this close are the same
+EQUATION_TOLERANCE = 1e-6
+#: lines are merged only when their headings agree this well (rad) ...
+HEADING_TOLERANCE = 1e-9
+#: ... and the merged line passes this close (m) to both ends of the second one
+POSITION_TOLERANCE = 1e-6
+
+
+def _heading_difference(a: float, b: float) -> float:
+    return abs((a - b + np.pi) % (2.0 * np.pi) - np.pi)
+
+
+def redundant_lines(geometries, tolerance: float = EQUATION_TOLERANCE) -> list[int]:
+    """Indices k of geometries that are a <line> following a <line> of the same heading (ASAM's test: the
+    heading alone; whether they also meet is geometry.gap's question)."""
+    return [k for k in range(1, len(geometries))
+            if geometries[k].kind == GeometryKind.LINE and geometries[k - 1].kind == GeometryKind.LINE
+            and _heading_difference(geometries[k].hdg, geometries[k - 1].hdg) < tolerance]
+
+
+def redundant_records(profile: CubicProfile, tolerance: float = EQUATION_TOLERANCE) -> np.ndarray:
+    """Indices k of records whose polynomial is the one of record k-1 re-expanded about record k's start
+    (every coefficient within ``tolerance``), in s order."""
+    if len(profile) < 2:
+        return np.zeros(0, dtype=np.int64)
+    a, b, c, d = profile.coefficients[:-1].T
+    ds = np.diff(profile.s0)
+    continued = np.column_stack([a + ds * (b + ds * (c + ds * d)), b + ds * (2.0 * c + 3.0 * d * ds),
+                                 c + 3.0 * d * ds, d])
+    same = np.all(np.abs(continued - profile.coefficients[1:]) < tolerance, axis=1)
+    return np.flatnonzero(same) + 1
+
+
+def _without(profile: CubicProfile, drop: np.ndarray) -> CubicProfile:
+    keep = np.ones(len(profile), dtype=bool)
+    keep[drop] = False
+    return replace(profile, s0=profile.s0[keep], coefficients=profile.coefficients[keep])
+
+
+def _merged_lines(geometries) -> tuple[tuple, int]:
+    """(geometries with mergeable line pairs merged, how many merged)."""
+    out = [geometries[0]] if geometries else []
+    for geometry in geometries[1:]:
+        before = out[-1]
+        if (geometry.kind == GeometryKind.LINE and before.kind == GeometryKind.LINE
+                and _heading_difference(geometry.hdg, before.hdg) < HEADING_TOLERANCE):
+            end_s = geometry.s + geometry.length
+            cos, sin = np.cos(before.hdg), np.sin(before.hdg)
+            # the merged line at the second's start and end
+            start_x, start_y = before.x + (geometry.s - before.s) * cos, before.y + (geometry.s - before.s) * sin
+            end_x, end_y = before.x + (end_s - before.s) * cos, before.y + (end_s - before.s) * sin
+            stop_x, stop_y = geometry.x + geometry.length * np.cos(geometry.hdg), \
+                geometry.y + geometry.length * np.sin(geometry.hdg)
+            if max(np.hypot(start_x - geometry.x, start_y - geometry.y),
+                   np.hypot(end_x - stop_x, end_y - stop_y)) <= POSITION_TOLERANCE:
+                out[-1] = replace(before, length=float(end_s - before.s))
+                continue
+        out.append(geometry)
+    return tuple(out), len(geometries) - len(out)
+
+
+def _dedup(profile: CubicProfile) -> tuple[CubicProfile, int]:
+    drop = redundant_records(profile)
+    return (profile, 0) if not len(drop) else (_without(profile, drop), len(drop))
+
+
+def _repaired_road(road):
+    """(road, {what: how many merged}) for one road; the very road when nothing is redundant."""
+    counts: dict = {}
+    changes: dict = {}
+    geometries, merged = _merged_lines(road.reference_line.geometries)
+    if merged:
+        counts["line geometries"] = merged
+        changes["reference_line"] = ReferenceLine(geometries)
+    for name, label in (("elevation", "elevation"), ("superelevation", "superelevation"),
+                        ("lane_offset", "lane offset")):
+        profile, dropped = _dedup(getattr(road, name))
+        if dropped:
+            counts[f"{label} records"] = dropped
+            changes[name] = profile
+    sections = []
+    for section in road.lane_sections:
+        lanes = []
+        for lane in section.lanes:
+            widths, dropped_widths = _dedup(lane.widths)
+            borders, dropped_borders = _dedup(lane.borders)
+            if dropped_widths or dropped_borders:
+                lane = replace(lane, widths=widths, borders=borders)
+                counts["lane width records"] = counts.get("lane width records", 0) + dropped_widths
+                counts["lane border records"] = counts.get("lane border records", 0) + dropped_borders
+            lanes.append(lane)
+        changed = any(new is not old for new, old in zip(lanes, section.lanes))
+        sections.append(replace(section, lanes=tuple(lanes)) if changed else section)
+    if any(new is not old for new, old in zip(sections, road.lane_sections)):
+        changes["lane_sections"] = tuple(sections)
+    counts = {what: n for what, n in counts.items() if n}
+    return (replace(road, **changes) if changes else road), counts
+
+
+def repair_redundant(odr):
+    """(map with redundant lines merged and redundant cubic records dropped, one Repair per road changed)."""
+    from tavf_mapkit.opendrive.network import OpenDriveMap
+
+    roads, repairs = list(odr.roads), []
+    for index, road in enumerate(odr.roads):
+        repaired, counts = _repaired_road(road)
+        if repaired is road:
+            continue
+        roads[index] = repaired
+        what = ", ".join(f"{n} {label}" for label, n in counts.items())
+        repairs.append(Repair(MERGED_RECORDS, road.id, road.line,
+                              f"{what} merged into the record before (same line or polynomial)"))
+    if not repairs:
+        return odr, []
+    return OpenDriveMap(odr.header, tuple(roads), odr.junctions, odr.controllers, odr.source, odr.warnings,
+                        odr.extra_xml), repairs
