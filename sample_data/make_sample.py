@@ -26,7 +26,8 @@ SOURCE = "synthetic (tavf-mapkit sample_data/make_sample.py)"
 class District:
     """Nodes keyed by their local (x, y) in metres, so ways that meet at a point share the node."""
 
-    def __init__(self) -> None:
+    def __init__(self, note: str = NOTE, source: str = SOURCE) -> None:
+        self.note, self.source = note, source
         self.nodes: dict[tuple[float, float], int] = {}
         self.node_tags: dict[int, dict[str, str]] = {}
         self.ways: list[tuple[int, list[int], dict[str, str]]] = []
@@ -37,13 +38,13 @@ class District:
             self.nodes[key] = -(len(self.nodes) + 1)
         node_id = self.nodes[key]
         if tags:
-            self.node_tags.setdefault(node_id, {"source": SOURCE}).update(tags)
+            self.node_tags.setdefault(node_id, {"source": self.source}).update(tags)
         return node_id
 
     def way(self, points, **tags: str) -> int:
         way_id = -(1000 + len(self.ways) + 1)
         refs = [point if isinstance(point, int) else self.node(*point) for point in points]
-        self.ways.append((way_id, refs, {**tags, "note": NOTE, "source": SOURCE}))
+        self.ways.append((way_id, refs, {**tags, "note": self.note, "source": self.source}))
         return way_id
 
 
@@ -111,19 +112,24 @@ def layout() -> District:
     return d
 
 
-def to_osm_xml(district: District) -> str:
+def to_osm_xml(district: District, centre: tuple[float, float] = (CENTRE_LAT, CENTRE_LON),
+               generator: str = "make_sample.py", place: str = "TAVF Hamburg") -> str:
+    """The district as OSM XML, its local metres placed on a transverse Mercator centred at ``centre`` (lat, lon)."""
     from pyproj import Transformer
 
-    local = (f"+proj=tmerc +lat_0={CENTRE_LAT} +lon_0={CENTRE_LON} +k=1 +x_0=0 +y_0=0 +ellps=WGS84 "
+    centre_lat, centre_lon = centre
+    local = (f"+proj=tmerc +lat_0={centre_lat} +lon_0={centre_lon} +k=1 +x_0=0 +y_0=0 +ellps=WGS84 "
              "+units=m +no_defs")
     to_wgs84 = Transformer.from_crs(local, "EPSG:4326", always_xy=True)
-    located = {node_id: to_wgs84.transform(x, y) for (x, y), node_id in district.nodes.items()}
+    keys = list(district.nodes)
+    xs, ys = to_wgs84.transform([x for x, _ in keys], [y for _, y in keys])  # one call: regions have 10^5 nodes
+    located = {district.nodes[key]: (lon, lat) for key, lon, lat in zip(keys, xs, ys)}
     lons = [lon for lon, _ in located.values()]
     lats = [lat for _, lat in located.values()]
     lines = [
         '<?xml version="1.0" encoding="UTF-8"?>',
-        '<osm version="0.6" generator="tavf-mapkit sample_data/make_sample.py (SYNTHETIC data)">',
-        f"<!-- {NOTE}. Placed at TAVF Hamburg coordinates (lat {CENTRE_LAT}, lon {CENTRE_LON}). -->",
+        f'<osm version="0.6" generator="tavf-mapkit sample_data/{generator} (SYNTHETIC data)">',
+        f"<!-- {district.note}. Placed at {place} coordinates (lat {centre_lat}, lon {centre_lon}). -->",
         (f'  <bounds minlat="{min(lats):.7f}" minlon="{min(lons):.7f}" maxlat="{max(lats):.7f}" '
          f'maxlon="{max(lons):.7f}"/>'),
     ]
