@@ -19,7 +19,8 @@ from tavf_mapkit.mesh.marks import road_marks
 from tavf_mapkit.mesh.solids import scene_solid_parts
 from tavf_mapkit.mesh.surface import build_road_surface
 from tavf_mapkit.mesh.tiled import read_labelled_index, read_labelled_tile
-from tavf_mapkit.mesh.tiles import Grid
+from tavf_mapkit.mesh.tiles import face_tiles
+from tavf_mapkit.tilegrid import TileGrid
 from tavf_mapkit.mesh.units import mesh_units
 from tavf_mapkit.opendrive import load_opendrive
 from tavf_mapkit.world import build_collision_world
@@ -47,7 +48,8 @@ def test_batches_of_any_size_give_the_same_files(built, tmp_path):
     xodr, osm = built
     odr = load_opendrive(xodr)
     units = mesh_units(odr)
-    assert len(units.batches(100.0, 1e12)) == 1 and len(units.batches(100.0, 300.0)) >= 8
+    spill = TileGrid.spill(100.0)
+    assert len(units.batches(spill, 1e12)) == 1 and len(units.batches(spill, 300.0)) >= 8
     assert sum(1 for junctions in units.unit_junctions if junctions) >= 5  # junction clusters among the units
     one = write_mesh_folder(odr, tmp_path / "one", osm_path=osm, batch_work=1e12)
     many = write_mesh_folder(odr, tmp_path / "many", osm_path=osm, batch_work=300.0)
@@ -76,12 +78,12 @@ def test_the_tiles_are_the_whole_maps_meshes_exported_at_once(built, tmp_path):
 
     # labelled tiles: every surface face once, in the tile of its centroid; every solid once, by its centre
     index = read_labelled_index(tmp_path / "tiled" / "labelled")
-    grid = Grid(tuple(index["origin"]), index["tile_size"])
+    grid = TileGrid.of(index)
     faces, solids = 0, []
     for name, tile in zip(index["tiles"], index["indices"]):
         part, tile_scene = read_labelled_tile(tmp_path / "tiled" / "labelled" / f"{name}.npz")
         if part is not None:
-            assert np.all(grid.tile_of(part) == tile)
+            assert np.all(face_tiles(grid, part) == tile)
             faces += len(part.faces)
         solids += [solid.source for solid in tile_scene.solids]
     assert faces == len(surface.mesh.faces) and sorted(solids) == sorted(s.source for s in scene.solids)

@@ -20,7 +20,8 @@ import numpy as np
 from tavf_mapkit.fileutil import write_bytes_atomic, write_text_atomic
 from tavf_mapkit.mesh.labelled import KIND_CODE, SURFACE_KINDS, LabelledMesh
 from tavf_mapkit.mesh.materials import mark_material, material_rgba
-from tavf_mapkit.mesh.tiles import Grid, faces_by_tile, map_origin, tile_name
+from tavf_mapkit.mesh.tiles import face_tiles, map_origin
+from tavf_mapkit.tilegrid import TileGrid, group_by_tile, tile_name
 
 FORMATS = ("glb", "obj")
 AXES = "glTF +Y up: (X, Y, Z) = (x - origin.x, z - origin.z, -(y - origin.y)), metres"
@@ -72,9 +73,9 @@ def export_meshes(layers: ExportLayers, folder: str | Path, fmt: str = "glb", ti
     folder = Path(folder)
     (folder / "tiles").mkdir(parents=True, exist_ok=True)
     groups = layers.groups()
-    grid = Grid(tuple(origin) if origin is not None else map_origin([g[2] for g in groups]), float(tile_size))
+    grid = TileGrid(tuple(origin) if origin is not None else map_origin([g[2] for g in groups]), float(tile_size))
     # which tile every face of every group falls into, and the faces of each tile (one sort per group)
-    per_group = [faces_by_tile(grid.tile_of(mesh)) for _, _, mesh in groups]
+    per_group = [group_by_tile(face_tiles(grid, mesh)) for _, _, mesh in groups]
     tiles = sorted({tile for by_tile in per_group for tile in by_tile})
     if fmt == "obj":
         write_materials(folder, [g[1] for g in groups])
@@ -105,7 +106,7 @@ def write_materials(folder: Path, materials) -> None:
     write_text_atomic(Path(folder) / "tiles" / "materials.mtl", _mtl(list(materials)))
 
 
-def write_tile(folder: Path, fmt: str, grid: Grid, index, members) -> dict:
+def write_tile(folder: Path, fmt: str, grid: TileGrid, index, members) -> dict:
     """Write one tile file from its (layer, material, mesh) members (in group order); return its mesh.json entry."""
     counts = {"lanes": 0, "marks": 0, "solids": 0}
     for layer, _, part in members:
@@ -117,7 +118,7 @@ def write_tile(folder: Path, fmt: str, grid: Grid, index, members) -> dict:
             "triangles": counts, "materials": sorted({material for _, material, _ in members})}
 
 
-def mesh_summary(fmt: str, grid: Grid, tile_entries: list, triangles: dict, materials, extra: dict) -> dict:
+def mesh_summary(fmt: str, grid: TileGrid, tile_entries: list, triangles: dict, materials, extra: dict) -> dict:
     """The content of mesh.json (without "preview")."""
     return {
         "format": fmt,

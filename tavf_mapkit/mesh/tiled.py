@@ -11,7 +11,7 @@ batched. Four passes, each holding one batch or a few tiles at a time:
 3. per group of buildings: their passages and ground heights, from the spilled surface around them (the ground
    search widens until the nearest surface vertices are certain);
 4. the origin is now known (the middle of all vertices' bounds): the pieces are moved to their tiles of the
-   final grid (``mesh.tiles``), and each tile is merged in canonical order and written -- glTF / OBJ, the
+   final grid (``tavf_mapkit.tilegrid``), and each tile is merged in canonical order and written -- glTF / OBJ, the
    labelled tile the collision stage reads, its strokes on the preview -- keeping only small per-tile figures.
 
 Files come out the same as exporting the whole map's meshes at once (``export.export_meshes``).
@@ -33,8 +33,9 @@ from tavf_mapkit.mesh.export import check_export_options, mesh_summary, write_ma
 from tavf_mapkit.mesh.labelled import KIND_CODE, SURFACE_KINDS, LabelledMesh, npz_bytes
 from tavf_mapkit.mesh.materials import mark_material
 from tavf_mapkit.mesh.spill import ChunkStore, Keyed, from_arrays, keyed_by_group, merge
-from tavf_mapkit.mesh.tiles import Grid, face_centroids, faces_by_tile, origin_of_bounds, solid_centres, tile_name
+from tavf_mapkit.mesh.tiles import face_tiles, solid_tiles
 from tavf_mapkit.mesh.units import BLOCK
+from tavf_mapkit.tilegrid import TileGrid, group_by_tile, origin_of_bounds, tile_name
 
 #: metres of lane per batch: memory of a batch grows with it (about 0.3 MB per km), time hardly at all
 BATCH_WORK = 100_000.0
@@ -93,15 +94,16 @@ def write_tiled_mesh(odr, folder: str | Path, eps: float, fmt: str = "glb", tile
     spill = Path(tempfile.mkdtemp(prefix=".spill-", dir=folder))
     stores = {name: ChunkStore(spill / f"{name}.bin") for name in ("surface", "marks", "solids", "whole")}
     tally = _Tally()
+    spill_grid = TileGrid.spill(float(tile_size))
     try:
-        for batch in units.batches(tile_size, batch_work):
-            _mesh_batch(odr, units, units.roads_of_units(batch), eps, tile_size, stores, tally, solids, exports)
+        for batch in units.batches(spill_grid, batch_work):
+            _mesh_batch(odr, units, units.roads_of_units(batch), eps, spill_grid, stores, tally, solids, exports)
         if solids:
-            surface = _SurfaceTiles(stores["surface"], tile_size, tally.reach)
+            surface = _SurfaceTiles(stores["surface"], spill_grid, tally.reach)
             _junction_curbs(odr, units, surface, stores, tally)
-            _buildings(odr, osm_path, surface, stores, tally, tile_size)
+            _buildings(odr, osm_path, surface, stores, tally)
         origin = origin_of_bounds(tally.low, tally.high) if origin is None else tuple(float(v) for v in origin)
-        grid = Grid(origin, float(tile_size))
+        grid = TileGrid(origin, float(tile_size))
         summary = _write_tiles(odr, folder, fmt, grid, stores, tally, preview, exports, eps, osm_path, solids,
                                extra or {})
     finally:
@@ -113,7 +115,7 @@ def write_tiled_mesh(odr, folder: str | Path, eps: float, fmt: str = "glb", tile
 
 # -- pass 1: batches ---------------------------------------------------------------------------------------
 
-def _mesh_batch(odr, units, roads, eps, tile_size, stores, tally, solids: bool, marks: bool) -> None:
+def _mesh_batch(odr, units, roads, eps, spill_grid: TileGrid, stores, tally, solids: bool, marks: bool) -> None:
     from tavf_mapkit.mesh.marks import road_marks
     from tavf_mapkit.mesh.surface import build_road_surface
 
@@ -132,13 +134,13 @@ def _mesh_batch(odr, units, roads, eps, tile_size, stores, tally, solids: bool, 
         junction = mesh.kind == KIND_CODE["junction"]
         if np.any(junction):
             _cluster_boxes(keyed, tally)
-    _spill(stores["surface"], keyed, tile_size, tally, "lanes")
+    _spill(stores["surface"], keyed, spill_grid, tally, "lanes")
     if marks:
         painted = road_marks(odr, eps, samples, roads=roads)
-        _spill(stores["marks"], keyed_by_group(painted, units.road_unit[painted.road_index]), tile_size, tally,
+        _spill(stores["marks"], keyed_by_group(painted, units.road_unit[painted.road_index]), spill_grid, tally,
                "marks")
     if solids:
-        _road_solids(odr, roads, keyed.mesh, eps, stores, tally, tile_size)
+        _road_solids(odr, roads, keyed.mesh, eps, stores, tally, spill_grid)
 
 
 def _cluster_boxes(keyed: Keyed, tally: _Tally) -> None:
@@ -152,8 +154,8 @@ def _cluster_boxes(keyed: Keyed, tally: _Tally) -> None:
         tally.cluster_box[u] = np.concatenate([low[mine].min(axis=0), high[mine].max(axis=0)])
 
 
-def _spill(store: ChunkStore, keyed: Keyed, tile_size: float, tally: _Tally, layer: str) -> None:
-    """Chunks of a keyed mesh by spill tile (floor(centroid / tile): the final grid is not known yet)."""
+def _spill(store: ChunkStore, keyed: Keyed, spill_grid: TileGrid, tally: _Tally, layer: str) -> None:
+    """Chunks of a keyed mesh by spill tile (the tile of each face's centroid: the final grid is not known yet)."""
     mesh = keyed.mesh
     if not len(mesh.faces):
         return
@@ -164,12 +166,11 @@ def _spill(store: ChunkStore, keyed: Keyed, tile_size: float, tally: _Tally, lay
         tally.marks += len(mesh.faces)
     else:
         tally.solid_faces += len(mesh.faces)
-    cell = np.floor(face_centroids(mesh)[:, :2] / tile_size).astype(np.int64)
-    for index, faces in faces_by_tile(cell).items():
+    for index, faces in group_by_tile(face_tiles(spill_grid, mesh)).items():
         store.add(index, keyed.select(faces).arrays())
 
 
-def _road_solids(odr, roads, surface: LabelledMesh, eps, stores, tally, tile_size) -> None:
+def _road_solids(odr, roads, surface: LabelledMesh, eps, stores, tally, spill_grid: TileGrid) -> None:
     """Curbs of raised lanes, objects and signals: each road's own, keyed (producer, road, number)."""
     from tavf_mapkit.mesh.lanes import raised_lane_rows
     from tavf_mapkit.mesh.solid_curbs import curb_solids
@@ -194,11 +195,11 @@ def _road_solids(odr, roads, surface: LabelledMesh, eps, stores, tally, tile_siz
             built, missing = make()
             made += [((producer, road, n), solid) for n, solid in enumerate(built)]
             skipped += [((producer, road, n), line) for n, line in enumerate(missing)]
-    _spill_solids(made, stores, tally, tile_size)
+    _spill_solids(made, stores, tally, spill_grid)
     tally.skipped += skipped
 
 
-def _spill_solids(made: list, stores, tally: _Tally, tile_size: float) -> None:
+def _spill_solids(made: list, stores, tally: _Tally, spill_grid: TileGrid) -> None:
     """Solids keyed (producer, primary, number): their faces by tile of face (the exported meshes), and each
     solid whole by tile of its centre (the collision world)."""
     if not made:
@@ -212,10 +213,9 @@ def _spill_solids(made: list, stores, tally: _Tally, tile_size: float) -> None:
                                                 np.arange(len(m.faces))]) for k, m in enumerate(meshes)])
     vertex_key = np.concatenate([np.column_stack([np.repeat(keys[k:k + 1], len(m.vertices), axis=0),
                                                   np.arange(len(m.vertices))]) for k, m in enumerate(meshes)])
-    _spill(stores["solids"], Keyed(LabelledMesh.concatenate(meshes), face_key, vertex_key), tile_size, tally,
+    _spill(stores["solids"], Keyed(LabelledMesh.concatenate(meshes), face_key, vertex_key), spill_grid, tally,
            "solids")
-    cell = np.floor(solid_centres(meshes) / tile_size).astype(np.int64)
-    for index, members in faces_by_tile(cell).items():
+    for index, members in group_by_tile(solid_tiles(spill_grid, meshes)).items():
         stores["whole"].add(index, _solid_arrays([solids[k] for k in members], keys[members]))
 
 
@@ -230,9 +230,10 @@ def _solid_arrays(solids: list, keys: np.ndarray) -> dict:
 class _SurfaceTiles:
     """The spilled road surface, merged per spill tile on demand (a bounded cache)."""
 
-    def __init__(self, store: ChunkStore, tile_size: float, reach: float):
+    def __init__(self, store: ChunkStore, grid: TileGrid, reach: float):
         self.store = store
-        self.size = tile_size
+        self.grid = grid
+        self.size = grid.size
         self.reach = reach
         self.cache: OrderedDict = OrderedDict()
         keys = np.array(store.keys(), dtype=np.int64).reshape(-1, 2)
@@ -251,9 +252,7 @@ class _SurfaceTiles:
 
     def cells(self, box, grow: float) -> tuple[np.ndarray, np.ndarray]:
         """First and last spill tile holding faces that may come within ``grow`` of ``box``."""
-        lo = np.floor((np.asarray(box[:2]) - grow - self.reach) / self.size).astype(np.int64)
-        hi = np.floor((np.asarray(box[2:]) + grow + self.reach) / self.size).astype(np.int64)
-        return lo, hi
+        return self.grid.tiles_touching(box, grow + self.reach)
 
     def square(self, lo, hi) -> Keyed | None:
         """The surface of the spill tiles lo..hi (inclusive), in canonical order."""
@@ -299,7 +298,9 @@ def _junction_curbs(odr, units, surface: _SurfaceTiles, stores, tally: _Tally) -
     )
 
     junction_rank = {j: k for k, j in enumerate(sorted(junction.id for junction in odr.junctions))}
-    clusters = sorted(tally.cluster_box, key=lambda u: tuple(np.floor(tally.cluster_box[u][[1, 0]] / surface.size)))
+    # by the spill tile of a cluster's south-west corner, row by row (clusters near each other share tiles)
+    corner_tile = {u: surface.grid.tile_of_point(*box[:2]) for u, box in tally.cluster_box.items()}
+    clusters = sorted(tally.cluster_box, key=lambda u: corner_tile[u][::-1])
     for start in range(0, len(clusters), CLUSTER_GROUP):
         group = clusters[start:start + CLUSTER_GROUP]
         roads = np.unique(np.concatenate([units.roads_near(tally.cluster_box[u], ROAD_REACH) for u in group]))
@@ -322,10 +323,10 @@ def _cluster_curbs(odr, units, unit, surface, around, junction_rank, stores, tal
             made.append((key, solid))
         else:
             tally.skipped.append((key, line))
-    _spill_solids(made, stores, tally, surface.size)
+    _spill_solids(made, stores, tally, surface.grid)
 
 
-def _buildings(odr, osm_path, surface: _SurfaceTiles, stores, tally: _Tally, tile_size: float) -> None:
+def _buildings(odr, osm_path, surface: _SurfaceTiles, stores, tally: _Tally) -> None:
     """Pass 3: OSM buildings, in groups by block of tiles, each cut where it stands on a drivable lane and
     standing on the lowest of its nearest road-surface vertices."""
     from tavf_mapkit.mesh.kinds import DRIVABLE_KINDS
@@ -344,8 +345,8 @@ def _buildings(odr, osm_path, surface: _SurfaceTiles, stores, tally: _Tally, til
         return
     drivable = [KIND_CODE[k] for k in DRIVABLE_KINDS]
     boxes = np.array([part[1].bounds for part in parts])
-    block = np.floor(0.5 * (boxes[:, :2] + boxes[:, 2:]) / (tile_size * BLOCK)).astype(np.int64)
-    for _, members in sorted(faces_by_tile(block[:, [1, 0]]).items()):
+    block = TileGrid.spill(surface.size * BLOCK).tile_of_boxes(boxes[:, :2], boxes[:, 2:])
+    for _, members in sorted(group_by_tile(block[:, [1, 0]]).items()):
         box = np.concatenate([boxes[members, :2].min(axis=0), boxes[members, 2:].max(axis=0)])
         # only drivable faces that reach into the group's box can cut a passage
         context = surface.square(*surface.cells(box, 0.0))
@@ -367,7 +368,7 @@ def _buildings(odr, osm_path, surface: _SurfaceTiles, stores, tally: _Tally, til
                 made.append((key, extrude_building(polygon, extent, lambda x, y, z=z: z, where)))
             except SolidError as error:
                 tally.skipped.append((key, f"{where}: {error}"))
-        _spill_solids(made, stores, tally, tile_size)
+        _spill_solids(made, stores, tally, surface.grid)
 
 
 def _ground_heights(surface: _SurfaceTiles, points: np.ndarray) -> np.ndarray:
@@ -398,7 +399,9 @@ def _ground_heights(surface: _SurfaceTiles, points: np.ndarray) -> np.ndarray:
         q = points[todo]
         distance, index = cKDTree(vertices[:, :2]).query(q, k=k)
         distance, index = distance.reshape(len(todo), k), index.reshape(len(todo), k)
-        inside = np.minimum(q - lo * surface.size, (hi + 1) * surface.size - q).min(axis=1) - surface.reach
+        west, south = surface.grid.tile_bounds(lo)[:2]
+        east, north = surface.grid.tile_bounds(hi)[2:]
+        inside = np.minimum(q - [west, south], [east, north] - q).min(axis=1) - surface.reach
         settled = complete | ((k == GROUND_NEIGHBOURS) & (distance.max(axis=1) <= inside))
         out[todo[settled]] = vertices[index[settled], 2].min(axis=1)
         if k == GROUND_NEIGHBOURS and np.any(~settled):
@@ -414,12 +417,13 @@ def _ground_heights(surface: _SurfaceTiles, points: np.ndarray) -> np.ndarray:
 
 # -- pass 4: the final grid ----------------------------------------------------------------------------------
 
-def _write_tiles(odr, folder: Path, fmt, grid: Grid, stores, tally: _Tally, preview: bool, exports: bool,
+def _write_tiles(odr, folder: Path, fmt, grid: TileGrid, stores, tally: _Tally, preview: bool, exports: bool,
                  eps: float, osm_path, solids: bool, extra: dict) -> dict:
     from tavf_mapkit.mesh.marks import MARK_COLOURS
     from tavf_mapkit.mesh.preview import PreviewCanvas, group_code
 
-    layers_of = {name: _Regrid(stores[name], grid, name) for name in stores}
+    spill_grid = TileGrid.spill(grid.size)
+    layers_of = {name: _Regrid(stores[name], grid, spill_grid, name) for name in stores}
     canvas = PreviewCanvas(tally.low, tally.high) if preview else None
     (folder / LABELLED).mkdir(exist_ok=True)
     if exports:
@@ -499,15 +503,14 @@ class _Regrid:
     (kept in a bounded cache) and its faces -- or whole solids -- grouped by the final tile they belong to.
     A final tile takes its pieces from the few spill tiles around it."""
 
-    def __init__(self, store: ChunkStore, grid: Grid, name: str):
+    def __init__(self, store: ChunkStore, grid: TileGrid, spill_grid: TileGrid, name: str):
         self.store, self.grid, self.name = store, grid, name
         self.cache: OrderedDict = OrderedDict()
         self.sources: dict = {}  # final tile -> spill tiles that may hold pieces of it
-        shift = np.asarray(grid.origin[:2]) / grid.size
         for key in store.keys():
-            # a centroid in spill tile p lies in [p, p + 1) tiles from 0; one tile more on each side for rounding
-            low = np.floor(np.asarray(key) - shift + 0.5).astype(np.int64) - 1
-            high = np.floor(np.asarray(key) + 1 - shift + 0.5).astype(np.int64) + 1
+            # the final tiles the spill tile's square reaches into; one tile more on each side for rounding
+            low, high = grid.tiles_touching(spill_grid.tile_bounds(key))
+            low, high = low - 1, high + 1
             for i in range(int(low[0]), int(high[0]) + 1):
                 for j in range(int(low[1]), int(high[1]) + 1):
                     self.sources.setdefault((i, j), []).append(key)
@@ -523,12 +526,12 @@ class _Regrid:
         if self.name == "whole":
             groups = {}
             for data in chunks:
-                for tile, members in faces_by_tile(self.grid.tile_of_points(_chunk_centres(data))).items():
+                for tile, members in group_by_tile(_solid_tiles(self.grid, data)).items():
                     groups.setdefault(tile, []).append(_subset_solids(data, members))
             entry = (None, groups)
         else:
             merged = merge([from_arrays(data, self.name == "marks") for data in chunks])
-            entry = (merged, faces_by_tile(self.grid.tile_of(merged.mesh)) if merged is not None else {})
+            entry = (merged, group_by_tile(face_tiles(self.grid, merged.mesh)) if merged is not None else {})
         self.cache[key] = entry
         if len(self.cache) > TILE_CACHE:
             self.cache.popitem(last=False)
@@ -544,12 +547,16 @@ class _Regrid:
         return out
 
 
-def _chunk_centres(data: dict) -> np.ndarray:
+
+
+def _solid_tiles(grid: TileGrid, data: dict) -> np.ndarray:
+    """The tile of each solid of a spilled chunk (of its bounding box's centre, as ``mesh.tiles.solid_tiles``)."""
     ends = np.cumsum(data["solid_vertices"])
     starts = ends - data["solid_vertices"]
     vertices = data["vertices"]
-    return np.array([0.5 * (vertices[a:b].min(axis=0) + vertices[a:b].max(axis=0))[:2]
-                     for a, b in zip(starts.tolist(), ends.tolist())]).reshape(-1, 2)
+    spans = list(zip(starts.tolist(), ends.tolist()))
+    return grid.tile_of_boxes(np.array([vertices[a:b].min(axis=0) for a, b in spans]).reshape(-1, 3),
+                              np.array([vertices[a:b].max(axis=0) for a, b in spans]).reshape(-1, 3))
 
 
 def _subset_solids(data: dict, members: np.ndarray) -> dict:

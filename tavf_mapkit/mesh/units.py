@@ -21,6 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tavf_mapkit.tilegrid import TileGrid
+
 COARSE_STEP = 5.0        # m of s between samples of the coarse boxes
 BOX_MARGIN = 2.0         # m added around every coarse box (chord error of a 5 m step on a 1.6 m radius)
 CLUSTER_GAP = 1.0        # m: junctions whose coarse boxes come this close are one cluster
@@ -66,12 +68,12 @@ class MeshUnits:
                 & (b[:, 3] >= south - reach))
         return np.flatnonzero(near)
 
-    def batches(self, tile: float, max_work: float) -> list[np.ndarray]:
-        """Units in batches: grouped by the tile of their anchor, at most ``max_work`` m of lane per batch
-        (unless one tile alone holds more)."""
+    def batches(self, grid: TileGrid, max_work: float) -> list[np.ndarray]:
+        """Units in batches: grouped by the tile of ``grid`` (the mesher's spill grid) their anchor is in, at
+        most ``max_work`` m of lane per batch (unless one tile alone holds more)."""
         if not self.count:
             return []
-        cell = np.floor(self.anchor() / tile).astype(np.int64)
+        cell = grid.tile_of_points(self.anchor())
         block = np.floor_divide(cell, BLOCK)
         order = np.lexsort((np.arange(self.count), cell[:, 0], cell[:, 1], block[:, 0], block[:, 1]))
         batches, current, work = [], [], 0.0

@@ -68,6 +68,9 @@ def build_report(context) -> dict:
     if "xodr" in context.artifacts:
         xodr = context.artifacts["xodr"]
         report["opendrive"] = {"file": xodr.name, **opendrive_counts(xodr)}
+    tiles = tile_report(context.folder)
+    if tiles:
+        report["tiles"] = tiles
     if "net" in context.artifacts:
         from tavf_mapkit.sumonet import check_sumo_net
 
@@ -75,6 +78,32 @@ def build_report(context) -> dict:
         report["sumo_net"] = {"file": context.artifacts["net"].name,
                               **{key: net[key] for key in ("edges", "lanes", "junctions", "traffic_lights")}}
     return report
+
+
+def tile_report(folder: Path) -> dict | None:
+    """The build's tile grid (``tavf_mapkit.tilegrid``) as the mesh files and the collision world record it:
+    size, origin, how many tiles each has and the range of their indices; None without either."""
+    from tavf_mapkit.tilegrid import TileGrid, tile_name
+
+    grids, out = {}, {}
+    for part, path, key in (("mesh", "mesh/mesh.json", "tiles"), ("collision", "collision/world.json", "tiles")):
+        try:
+            document = json.loads((Path(folder) / path).read_text(encoding="utf-8"))
+            grids[part] = TileGrid.of(document)
+            indices = [tuple(entry["index"]) for entry in document[key]]
+        except (OSError, ValueError, KeyError, TypeError):
+            continue
+        out[part] = {"tiles": len(indices)}
+        if indices:
+            low, high = (min(i for i, _ in indices), min(j for _, j in indices)), \
+                (max(i for i, _ in indices), max(j for _, j in indices))
+            out[part]["south_west"], out[part]["north_east"] = tile_name(low), tile_name(high)
+    if not grids:
+        return None
+    grid = grids.get("mesh") or grids["collision"]
+    return {"size": grid.size, "origin": list(grid.origin), **out,
+            # [mesh] tile and [collision] tile may be set apart; then the names stand for other squares
+            "one_grid": len(set(grids.values())) == 1}
 
 
 def report_text(report: dict) -> str:
@@ -98,6 +127,13 @@ def report_text(report: dict) -> str:
         lines.append(f"xodr    {opendrive['file']}: {opendrive['roads']} roads "
                      f"({opendrive['road_length_km']:.1f} km), {opendrive['junctions']} junctions, "
                      f"{opendrive['signals']} signals, {opendrive['objects']} objects")
+    tiles = report.get("tiles")
+    if tiles:
+        counts = " + ".join(f"{tiles[part]['tiles']} {part}" for part in ("mesh", "collision") if part in tiles)
+        origin = tiles["origin"]
+        lines.append(f"tiles   {counts} tiles of {tiles['size']:g} m centred on local ({origin[0]:g}, {origin[1]:g})"
+                     + ("" if tiles["one_grid"] else "; mesh and collision on different grids ([mesh] tile "
+                                                    "differs from [collision] tile)"))
     net = report.get("sumo_net")
     if net:
         lines.append(f"net     {net['file']}: {net['edges']} edges, {net['lanes']} lanes, "

@@ -8,6 +8,8 @@ from functools import cached_property
 
 import numpy as np
 
+from tavf_mapkit.tilegrid import TileGrid
+
 RAY_BATCH = 8192  # rays per rayTestBatch call (pybullet refuses batches above 16,384)
 
 
@@ -31,6 +33,15 @@ class WorldBodies:
     @cached_property
     def body_ids(self) -> tuple[int, ...]:
         return tuple(body.body_id for body in self.bodies)
+
+    @cached_property
+    def grid(self) -> TileGrid:
+        """The build's tile grid (the mesh files' squares and names)."""
+        return TileGrid(tuple(float(v) for v in self.origin), self.tile_size)
+
+    def tile_at(self, x: float, y: float) -> str:
+        """Name of the tile holding an OpenDRIVE local point (``by_tile`` has its bodies, if any)."""
+        return self.grid.name_of_point(x, y)
 
     @cached_property
     def by_tile(self) -> dict[str, tuple[int, ...]]:

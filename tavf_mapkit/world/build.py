@@ -1,5 +1,5 @@
 """Build the pybullet collision world of a map: collision/world.json plus one OBJ per body, tile by tile on
-the exported meshes' grid (``mesh.tiles``).
+the build's tile grid (``tavf_mapkit.tilegrid``), the exported meshes' squares and names.
 
 Bodies are static concave triangle meshes, one per tile and group:
 - ``road``: drivable road surface (driving, biking, parking, shoulder, restricted lanes and junction surfaces)
@@ -23,9 +23,10 @@ import numpy as np
 
 from tavf_mapkit.mesh.kinds import DRIVABLE_KINDS
 from tavf_mapkit.mesh.labelled import KIND_CODE, SURFACE_KINDS, LabelledMesh
-from tavf_mapkit.mesh.tiles import Grid, faces_by_tile, map_origin, solid_centres
+from tavf_mapkit.mesh.tiles import face_tiles, map_origin, solid_tiles
+from tavf_mapkit.tilegrid import TileGrid, group_by_tile
 from tavf_mapkit.world.objfile import obj_text
-from tavf_mapkit.world.tiles import BodyPart, split_faces
+from tavf_mapkit.world.parts import BodyPart, split_faces
 
 FORMAT = "tavf-mapkit collision world"
 FORMAT_VERSION = 1
@@ -80,14 +81,14 @@ def build_collision_world(odr, out_dir, eps: float = 0.05, osm_path: Path | None
         scene = scene_solid_parts(odr, surface, osm_path, eps)
     if origin is None:
         origin = map_origin([surface, scene.mesh()])
-    grid = Grid(tuple(_origin(origin)), float(tile))
-    face_tiles = faces_by_tile(grid.tile_of(surface)) if len(surface.faces) else {}
-    solid_tiles = faces_by_tile(grid.tile_of_points(solid_centres([s.mesh for s in scene.solids])))
+    grid = TileGrid(tuple(_origin(origin)), float(tile))
+    faces_of = group_by_tile(face_tiles(grid, surface))
+    solids_of = group_by_tile(solid_tiles(grid, [s.mesh for s in scene.solids]))
     writer = _WorldWriter(out_dir, grid, eps, world_georeference(odr.header))
     try:
-        for index in sorted(set(face_tiles) | set(solid_tiles), key=lambda t: (t[1], t[0])):
-            part = surface.select(face_tiles[index]) if index in face_tiles else None
-            writer.add(index, tile_bodies(index, part, [scene.solids[k] for k in solid_tiles.get(index, [])]))
+        for index in sorted(set(faces_of) | set(solids_of), key=lambda t: (t[1], t[0])):
+            part = surface.select(faces_of[index]) if index in faces_of else None
+            writer.add(index, tile_bodies(index, part, [scene.solids[k] for k in solids_of.get(index, [])]))
         return writer.finish({**scene.counts(), "skipped": list(scene.skipped)})
     except BaseException:
         writer.abandon()
@@ -102,7 +103,7 @@ def build_collision_world_from_tiles(labelled: Path, out_dir) -> dict:
     index_json = read_labelled_index(labelled)
     eps, tile = float(index_json["eps"]), float(index_json["tile_size"])
     _check_options(eps, tile)
-    grid = Grid(tuple(_origin(index_json["origin"])), tile)
+    grid = TileGrid(tuple(_origin(index_json["origin"])), tile)
     writer = _WorldWriter(out_dir, grid, eps, index_json["georeference"])
     try:
         for name, index in sorted(zip(index_json["tiles"], map(tuple, index_json["indices"])),
@@ -139,7 +140,7 @@ def _origin(origin) -> np.ndarray:
 class _WorldWriter:
     """collision/ written tile by tile into a staging folder, put in place whole at the end."""
 
-    def __init__(self, out_dir, grid: Grid, eps: float, georeference: dict):
+    def __init__(self, out_dir, grid: TileGrid, eps: float, georeference: dict):
         self.out_dir = Path(out_dir)
         self.out_dir.mkdir(parents=True, exist_ok=True)
         self.grid, self.eps, self.georeference = grid, eps, georeference

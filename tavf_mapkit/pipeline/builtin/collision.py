@@ -20,7 +20,7 @@ class CollisionStage(Stage):
     # 5: junction curbs along the connecting lanes' sides, clear of the swept path of a car on each driving lane;
     # 6: reuses the mesh stage's scene solids when they were made at the same eps from the same input;
     # 7: a laneOffset step at a section boundary no longer bends the section's end; 8: tile by tile from the
-    # mesh stage's labelled tiles, on the mesh grid (tiles centred on the origin, as mesh/tiles)
+    # mesh stage's labelled tiles, on the mesh grid (tiles centred on the origin, tilegrid.py)
     description = "pybullet collision world: road surface, curbs, objects, signals, buildings (tiled OBJ)"
 
     def options(self, context: BuildContext) -> dict:

@@ -1,5 +1,5 @@
-"""Cut meshes into collision bodies on the tile grid of the exported meshes (``mesh.tiles.Grid``: squares
-centred on the origin, the same squares and names as mesh/tiles and mesh/labelled).
+"""Cut meshes into collision bodies on the build's tile grid (``tavf_mapkit.tilegrid``: squares centred on the
+origin, the same squares and names as the mesh files and the labelled tiles).
 
 A face belongs to the tile that holds its centroid; a solid stays whole in the tile of its bounding-box centre.
 A body with more than MAX_BODY_VERTICES vertices is split into quarters until it fits, so every body also fits
@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tavf_mapkit.mesh.labelled import LabelledMesh
-from tavf_mapkit.mesh.tiles import tile_name
+from tavf_mapkit.tilegrid import tile_name
 
 MAX_BODY_VERTICES = 100_000
 
