@@ -343,28 +343,57 @@ def lane_link_target(ctx, rule):
                       s=road.lane_sections[k].s0, line=lane.line)
 
 
-@rule("topology.lane-link-symmetry", WARNING,
-      summary="Lane links are given in both directions: if lane A's successor is lane B (same road, or across a "
-              "road link that both roads state), B has a predecessor (or successor, for an end-to-end link); it may "
-              "name another lane where lanes merge.",
-      why="One-sided links make routing depend on the direction of travel; many readers follow only one side.")
-def lane_link_symmetry(ctx, rule):
-    odr = ctx.odr
-    for road, k, lane, direction, target_id, other, section, contact in _lane_link_targets(odr):
-        target = other.lane_sections[section].by_id.get(target_id)
-        if target is None:
+def _facing_sections(odr):
+    """Pairs of lane sections that meet, each as (road, section index, the lane link that crosses the meeting):
+    consecutive sections of a road, and the end section of a road outside junctions with the section of the road
+    it links to at the contact point (a junction's own roads link their end lanes through the junction's
+    laneLinks, where the standard says the lane's own link is omitted)."""
+    for road in odr.roads:
+        n = len(road.lane_sections)
+        for k in range(n - 1):
+            yield (road, k, "successor"), (road, k + 1, "predecessor")
+        if road.in_junction or not n:
             continue
-        if other is road:
-            back = "successor" if direction == "predecessor" else "predecessor"
-        else:
-            back_link = other.predecessor if contact == "start" else other.successor
-            if back_link is None or back_link.element_type != "road" or back_link.element_id != road.id:
-                continue  # the other road does not state this link: nothing to mirror
-            back = "predecessor" if contact == "start" else "successor"
-        if getattr(target, back) is None:  # another lane there is fine: lanes merge and split
-            where = "the next lane section" if other is road else f"road {other.id}"
-            yield Hit(f"{direction} is lane {target_id} of {where}, but that lane has no {back}", road=road.id,
-                      lane=lane.id, s=road.lane_sections[k].s0, line=lane.line)
+        for side, link in (("predecessor", road.predecessor), ("successor", road.successor)):
+            if link is None or link.element_type != "road" or link.element_id not in odr.road_by_id:
+                continue
+            other = odr.road_by_id[link.element_id]
+            if not other.lane_sections:
+                continue
+            contact = link.contact_point or ("end" if side == "predecessor" else "start")
+            yield ((road, 0 if side == "predecessor" else n - 1, side),
+                   (other, 0 if contact == "start" else len(other.lane_sections) - 1,
+                    "predecessor" if contact == "start" else "successor"))
+
+
+@rule("topology.lane-link-symmetry", WARNING,
+      summary="Lane links are given in both directions: if lane A names lane B as its successor (next lane section, "
+              "or a linked road's section at the contact point, for a road outside junctions), B names A as its "
+              "predecessor (or successor, end to end), or names another lane that itself links to B (lanes merge).",
+      why="One-sided links make routing depend on the direction of travel; many readers follow only one side. The "
+          "finding names lane B, the one whose link is missing.")
+def lane_link_symmetry(ctx, rule):
+    reported = set()
+    for first, second in _facing_sections(ctx.odr):
+        for (road, k, direction), (other, j, back) in ((first, second), (second, first)):
+            here, there = road.lane_sections[k], other.lane_sections[j]
+            for lane in here.side_lanes:
+                target = there.by_id.get(getattr(lane, direction)) if getattr(lane, direction) else None
+                if target is None:
+                    continue  # topology.lane-link-target reports a link to a lane that is not there
+                named = getattr(target, back)
+                merge = here.by_id.get(named) if named is not None else None
+                if named == lane.id or (merge is not None and getattr(merge, direction) == target.id):
+                    continue
+                key = (other.id, j, target.id, road.id, k, lane.id)
+                if key in reported:
+                    continue
+                reported.add(key)
+                where = "the lane section before" if other is road and j > k else \
+                    "the next lane section" if other is road else f"road {road.id}"
+                instead = f"names lane {named} instead" if named is not None else f"has no {back}"
+                yield Hit(f"lane {target.id} {instead}, but lane {lane.id} of {where} names it as its {direction}",
+                          road=other.id, lane=target.id, s=there.s0, line=target.line)
 
 
 @rule("topology.lane-section-link", WARNING, tolerance=0.01, unit="m",
