@@ -10,6 +10,12 @@ from tavf_mapkit.validate.finding import ERROR, WARNING, Hit
 from tavf_mapkit.validate.registry import rule
 
 
+def junctions_with_connecting_roads(odr):
+    """The junctions whose connections name a connecting road: not the direct junctions, whose @linkedRoad is a
+    road outside the junction that the incoming road runs into."""
+    return [junction for junction in odr.junctions if junction.type != "direct"]
+
+
 @rule("topology.junction-needed", ERROR,
       summary="At most one road outside junctions links directly to each end of a road (predecessor/successor with "
               "@elementType road and @contactPoint); where several do, the roads meet in a junction.",
@@ -47,15 +53,15 @@ def incoming_road(ctx, rule):
 
 
 @rule("topology.connection-unique", ERROR,
-      summary="Each connecting road is the connecting road of exactly one junction <connection> (up to OpenDRIVE "
-              "1.7; 1.8 allows one per incoming road and direction).",
+      summary="In an OpenDRIVE 1.7 file, each connecting road is the connecting road of exactly one junction "
+              "<connection> (the rule of 1.7; 1.8 allows one per incoming road, earlier versions say nothing).",
       why="A connecting road carries one path through the junction; two connections for it make its lane links "
           "depend on which one a reader takes.")
 def connection_unique(ctx, rule):
-    if ctx.odr.header.rev_major == 1 and ctx.odr.header.rev_minor > 7:
+    if (ctx.odr.header.rev_major, ctx.odr.header.rev_minor) != (1, 7):
         return
     uses = defaultdict(list)
-    for junction in ctx.odr.junctions:
+    for junction in junctions_with_connecting_roads(ctx.odr):
         for connection in junction.connections:
             if connection.connecting_road:
                 uses[connection.connecting_road].append((junction, connection))
@@ -73,7 +79,7 @@ def connection_unique(ctx, rule):
           "link says otherwise, readers run the connecting road in opposite directions.")
 def connection_contact(ctx, rule):
     roads = ctx.odr.road_by_id
-    for junction in ctx.odr.junctions:
+    for junction in junctions_with_connecting_roads(ctx.odr):
         for connection in junction.connections:
             connecting = roads.get(connection.connecting_road)
             if connecting is None or connection.contact_point not in ("start", "end"):
@@ -106,7 +112,7 @@ def _drives_along_s(lane, road) -> bool | None:
           "the connecting road: routes through the junction turn into oncoming traffic.")
 def junction_lane_direction(ctx, rule):
     roads = ctx.odr.road_by_id
-    for junction in ctx.odr.junctions:
+    for junction in junctions_with_connecting_roads(ctx.odr):
         for connection in junction.connections:
             connecting, incoming = roads.get(connection.connecting_road), roads.get(connection.incoming_road)
             if connecting is None or incoming is None or connection.contact_point not in ("start", "end"):

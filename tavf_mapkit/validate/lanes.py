@@ -69,8 +69,10 @@ def _junction_lane_links(odr):
     """(incoming road, its lane, "start"/"end" of the incoming road at the junction, connecting road, its lane,
     the connection's contact point) for every junction laneLink whose connecting road states its link to the
     incoming road's end."""
+    from tavf_mapkit.validate.junctions import junctions_with_connecting_roads
+
     roads = odr.road_by_id
-    for junction in odr.junctions:
+    for junction in junctions_with_connecting_roads(odr):
         for connection in junction.connections:
             incoming, connecting = roads.get(connection.incoming_road), roads.get(connection.connecting_road)
             if incoming is None or connecting is None or not incoming.lane_sections or not connecting.lane_sections:

@@ -369,9 +369,10 @@ def _facing_sections(odr):
 @rule("topology.lane-link-symmetry", WARNING,
       summary="Lane links are given in both directions: if lane A names lane B as its successor (next lane section, "
               "or a linked road's section at the contact point, for a road outside junctions), B names A as its "
-              "predecessor (or successor, end to end), or names another lane that itself links to B (lanes merge).",
+              "predecessor (or successor, end to end).",
       why="One-sided links make routing depend on the direction of travel; many readers follow only one side. The "
-          "finding names lane B, the one whose link is missing.")
+          "finding names lane B, the one whose link is missing. Where two lanes merge into one, OpenDRIVE 1.4-1.7 "
+          "give the merged lane one predecessor: the other lane is reported (ASAM's checker does the same).")
 def lane_link_symmetry(ctx, rule):
     reported = set()
     for first, second in _facing_sections(ctx.odr):
@@ -382,8 +383,7 @@ def lane_link_symmetry(ctx, rule):
                 if target is None:
                     continue  # topology.lane-link-target reports a link to a lane that is not there
                 named = getattr(target, back)
-                merge = here.by_id.get(named) if named is not None else None
-                if named == lane.id or (merge is not None and getattr(merge, direction) == target.id):
+                if named == lane.id:
                     continue
                 key = (other.id, j, target.id, road.id, k, lane.id)
                 if key in reported:
