@@ -95,11 +95,18 @@ def connection_contact(ctx, rule):
                           line=connecting.line)
 
 
+#: lane types traffic drives along in one direction (a sidewalk or shoulder has none: CARLA links them through
+#: its junctions as they lie)
+DIRECTED_LANE_TYPES = frozenset({"driving", "entry", "exit", "onRamp", "offRamp", "connectingRamp", "slipLane",
+                                 "biking", "bus", "taxi", "HOV", "mwyEntry", "mwyExit"})
+
+
 def _drives_along_s(lane, road) -> bool | None:
-    """Whether traffic on the lane drives in the direction of s (None: both directions). Right-hand traffic
-    drives along s on the right (negative ids), left-hand traffic on the left; @direction reversed flips it."""
+    """Whether traffic on the lane drives in the direction of s (None: both directions, or a lane without a
+    direction). Right-hand traffic drives along s on the right (negative ids), left-hand traffic on the left;
+    @direction reversed flips it."""
     direction = lane.attrib.get("direction", "standard")
-    if direction == "both":
+    if direction == "both" or lane.type not in DIRECTED_LANE_TYPES:
         return None
     along = (lane.id < 0) == (road.rule != "LHT")
     return not along if direction == "reversed" else along
@@ -107,7 +114,8 @@ def _drives_along_s(lane, road) -> bool | None:
 
 @rule("topology.junction-lane-direction", WARNING,
       summary="A junction laneLink joins a lane that drives towards the junction to a lane of the connecting road "
-              "that drives away from the incoming road (driving side from each road's @rule, lane @direction).",
+              "that drives away from the incoming road (lanes vehicles drive along one way; driving side from each "
+              "road's @rule, lane @direction).",
       why="A laneLink against the driving direction connects a lane leaving the junction, or the opposite lane of "
           "the connecting road: routes through the junction turn into oncoming traffic.")
 def junction_lane_direction(ctx, rule):
@@ -119,8 +127,8 @@ def junction_lane_direction(ctx, rule):
                 continue
             link = connecting.predecessor if connection.contact_point == "start" else connecting.successor
             if link is None or link.element_type != "road" or link.contact_point not in ("start", "end") \
-                    or not connecting.lane_sections or not incoming.lane_sections:
-                continue
+                    or link.element_id != incoming.id or not connecting.lane_sections or not incoming.lane_sections:
+                continue  # which end of the incoming road is meant is unknown (topology.connection-contact)
             incoming_section = incoming.lane_sections[0 if link.contact_point == "start" else -1]
             connecting_section = connecting.lane_sections[0 if connection.contact_point == "start" else -1]
             for lane_link in connection.lane_links:
