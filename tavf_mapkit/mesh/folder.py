@@ -4,12 +4,9 @@ the pipeline stage and the command. The work is done tile by tile (``mesh.tiled`
 
 from __future__ import annotations
 
-import os
-import shutil
-import tempfile
 from pathlib import Path
 
-from tavf_mapkit.errors import InputError
+from tavf_mapkit.fileutil import staged_folder
 from tavf_mapkit.mesh.surface import DEFAULT_EPS
 from tavf_mapkit.mesh.tiled import BATCH_WORK, write_tiled_mesh
 
@@ -33,30 +30,8 @@ def write_mesh_folder(odr, folder: str | Path, eps: float = DEFAULT_EPS, fmt: st
 
 
 def replace_folder(target: Path, make) -> dict:
-    """Run ``make(staging_folder)`` and put the result at ``target`` atomically (rename); a target that
-    exists must be empty or an earlier mesh folder (with mesh.json), so nothing else is ever deleted."""
-    target = Path(target)
-    if target.exists() and not target.is_dir():
-        raise InputError("exists and is not a folder", file=str(target))
-    if target.is_dir() and any(target.iterdir()) and not (target / "mesh.json").is_file():
-        raise InputError("folder is not empty and holds no mesh.json: refusing to replace it", file=str(target))
-    parent = target.parent if str(target.parent) else Path(".")
-    try:
-        parent.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.staging-", dir=parent))
-    except OSError as error:
-        raise InputError(f"cannot write there ({error.strerror})", file=str(target)) from None
-    try:
-        os.chmod(staging, 0o755)
-        result = make(staging)
-        old = None
-        if target.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{target.name}.old-", dir=parent))
-            os.replace(target, old / "previous")
-        os.replace(staging, target)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-        return result
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
+    """Run ``make(staging_folder)`` and put the result at ``target`` atomically (``fileutil.staged_folder``); a
+    target that exists must be empty or an earlier mesh folder (with mesh.json), so nothing else is ever deleted."""
+    with staged_folder(target, marker="mesh.json", what="the mesh folder",
+                       refusal="folder is not empty and holds no mesh.json: refusing to replace it") as staging:
+        return make(staging)

@@ -11,13 +11,13 @@ netconvert reads: turn restrictions always, route relations (bus and tram lines)
 
 from __future__ import annotations
 
-import os
 from array import array
 from pathlib import Path
 
 import numpy as np
 
 from tavf_mapkit.errors import InputError
+from tavf_mapkit.fileutil import staged_file
 from tavf_mapkit.osm.area import Area
 from tavf_mapkit.osm.files import OSM_SUFFIXES, osmium_errors, require_osm_name, require_readable
 from tavf_mapkit.osm.summary import ExtractSummary
@@ -50,32 +50,27 @@ def extract(source: str | Path, target: str | Path, area: Area | None = None, *,
             selection = _select(source, area, routes)
 
     summary = ExtractSummary(output=str(target), area=area.to_dict() if area else None)
-    partial = target.with_name(f".{target.name}.partial-{os.getpid()}{_suffix(target)}")
     header = osmium.io.Header()
     header.set("generator", GENERATOR)
     if area is not None:
         west, south, east, north = area.bbox
         header.add_box(osmium.osm.Box(osmium.osm.Location(west, south), osmium.osm.Location(east, north)))
     try:
-        try:
-            writer = osmium.SimpleWriter(str(partial), header=header, overwrite=True)
-        except RuntimeError as error:
-            raise InputError(f"cannot write: {error}", file=str(target)) from None
-        try:
-            with osmium_errors(source):
-                _write(source, writer, selection, summary)
-        finally:
-            writer.close()
-        if summary.ways == 0:
-            raise InputError(_empty_message(source, area, summary, selection), file=str(source))
-        os.replace(partial, target)
+        # osmium picks the format by the file's name: the temporary one ends like the target
+        with staged_file(target, suffix=_suffix(target)) as partial:
+            try:
+                writer = osmium.SimpleWriter(str(partial), header=header, overwrite=True)
+            except RuntimeError as error:
+                raise InputError(f"cannot write: {error}", file=str(target)) from None
+            try:
+                with osmium_errors(source):
+                    _write(source, writer, selection, summary)
+            finally:
+                writer.close()
+            if summary.ways == 0:
+                raise InputError(_empty_message(source, area, summary, selection), file=str(source))
     except OSError as error:
         raise InputError(f"cannot write: {error.strerror or error}", file=str(target)) from None
-    finally:
-        try:
-            partial.unlink(missing_ok=True)
-        except OSError:
-            pass
     return summary
 
 

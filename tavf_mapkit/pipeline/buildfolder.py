@@ -1,10 +1,7 @@
-"""Atomic build folders: build in a staging folder next to the target, then swap it into place.
-
-The staging folder is a sibling of the target (same filesystem, so the final rename is atomic). On success
-the new folder replaces the old one in one step (renameat2 RENAME_EXCHANGE where the kernel has it,
-otherwise two renames with signals blocked in between) and the old one is removed. On any failure --
-a stage error, KeyboardInterrupt, SIGTERM -- the staging folder is removed and the existing build is
-left exactly as it was. A lock file keeps two builds from writing the same target at once.
+"""Atomic build folders: build in a staging folder next to the target, then swap it into place
+(``fileutil.StagedFolder``: one step where the kernel can, the old build removed afterwards). On any failure --
+a stage error, KeyboardInterrupt, SIGTERM -- the staging folder is removed and the existing build is left
+exactly as it was. A lock file keeps two builds from writing the same target at once.
 
 A build killed outright (SIGKILL, the kernel's out-of-memory killer, power loss) runs no cleanup: it leaves
 its staging folder, and its record in the lock file. The lock itself is an flock, which the kernel releases
@@ -16,15 +13,11 @@ the flock, so a concurrent build is refused, naming the holder.
 
 from __future__ import annotations
 
-import ctypes
-import errno
 import fcntl
-import os
 import json
-import shutil
+import os
 import signal
 import socket
-import tempfile
 import threading
 import time
 from collections.abc import Callable
@@ -32,10 +25,8 @@ from pathlib import Path
 from typing import Self
 
 from tavf_mapkit.errors import InputError, StageError
+from tavf_mapkit.fileutil import StagedFolder
 from tavf_mapkit.pipeline.manifest import MANIFEST_NAME
-
-_RENAME_EXCHANGE = 2
-_AT_FDCWD = -100
 
 
 class BuildInterrupted(KeyboardInterrupt):
@@ -46,13 +37,23 @@ class BuildFolder:
     """``with BuildFolder(target) as folder: ...write into folder.staging...; folder.commit()``."""
 
     def __init__(self, target: str | Path, notify: Callable[[str], None] | None = None) -> None:
-        self.target = Path(target).absolute()
+        self._staged = StagedFolder(target, marker=MANIFEST_NAME, what="the build folder",
+                                    # the swap would delete it: refuse to treat somebody's folder as an old build
+                                    refusal="exists and is not a mapkit build folder (no manifest.json); "
+                                            "choose another -o or remove it")
+        self.target = self._staged.target
         self.parent = self.target.parent
-        self.staging: Path | None = None
-        self.committed = False
         self._notify = notify or (lambda line: None)  # one line for the user (recovery from a killed build)
         self._lock_handle = None
         self._previous_sigterm = None
+
+    @property
+    def staging(self) -> Path | None:
+        return self._staged.staging
+
+    @property
+    def committed(self) -> bool:
+        return self._staged.committed
 
     @property
     def existing(self) -> Path | None:
@@ -60,7 +61,7 @@ class BuildFolder:
         return self.target if (self.target / MANIFEST_NAME).is_file() else None
 
     def __enter__(self) -> Self:
-        self._check_target()
+        self._staged.check()
         try:
             self.parent.mkdir(parents=True, exist_ok=True)
         except OSError as error:
@@ -69,59 +70,29 @@ class BuildFolder:
         killed = self._lock()
         try:
             self._recover(killed)
-            self.staging = Path(tempfile.mkdtemp(prefix=f".{self.target.name}.staging-", dir=self.parent))
-            self.staging.chmod(0o777 & ~_umask())  # mkdtemp makes it private; a build folder is not
+            self._staged.open()
         except OSError as error:
             self._unlock()
             raise InputError(f"cannot write the build folder: {error.strerror}",
                              file=str(self.parent)) from None
+        except BaseException:
+            self._unlock()
+            raise
         self._catch_sigterm()
         return self
 
     def __exit__(self, exc_type, exc, traceback) -> None:
         try:
-            if not self.committed and self.staging is not None:
-                shutil.rmtree(self.staging, ignore_errors=True)
+            self._staged.discard()
         finally:
             self._restore_sigterm()
             self._unlock()
 
     def commit(self) -> None:
         """Put the staging folder in place of the target; the old build is removed afterwards."""
-        assert self.staging is not None
-        blocked = {signal.SIGINT, signal.SIGTERM}
-        previous_mask = signal.pthread_sigmask(signal.SIG_BLOCK, blocked)
-        try:
-            if self.target.exists():
-                _swap(self.staging, self.target)
-                old = self.staging  # after the swap the staging name holds the previous build
-            else:
-                os.rename(self.staging, self.target)
-                old = None
-            self.committed = True
-        except OSError as error:
-            raise StageError(f"cannot move the new build into place: {error.strerror}",
-                             file=str(self.target)) from None
-        finally:
-            signal.pthread_sigmask(signal.SIG_SETMASK, previous_mask)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
+        self._staged.commit()
 
     # ------------------------------------------------------------------------------------------- private
-
-    def _check_target(self) -> None:
-        target = self.target
-        if target.exists() and not target.is_dir():
-            raise InputError("exists and is not a folder", file=str(target))
-        if target.is_dir() and any(target.iterdir()) and not (target / MANIFEST_NAME).is_file():
-            # the swap would delete it: refuse to treat somebody's folder as an old build
-            raise InputError("exists and is not a mapkit build folder (no manifest.json); "
-                             "choose another -o or remove it", file=str(target))
-        for ancestor in [target.parent, *target.parent.parents]:
-            if ancestor.exists():
-                if not ancestor.is_dir():
-                    raise InputError("is not a folder", file=str(ancestor))
-                break
 
     @property
     def lock_path(self) -> Path:
@@ -169,18 +140,7 @@ class BuildFolder:
 
     def _recover(self, killed: dict | None) -> None:
         """Remove the staging folders of killed builds (we hold the lock, so none is live) and say so."""
-        done = []
-        leftovers = sorted(self.parent.glob(f".{self.target.name}.staging-*"))
-        for leftover in leftovers:
-            # killed between the two renames of _swap's fallback: the previous build waits beside the target
-            previous_build = leftover.name.endswith("-old") and (leftover / MANIFEST_NAME).is_file()
-            if previous_build and not self.target.exists():
-                os.rename(leftover, self.target)
-                done.append(f"put the previous build back from {leftover.name}")
-        for leftover in leftovers:
-            if leftover.exists():
-                shutil.rmtree(leftover, ignore_errors=True)
-                done.append(f"removed its unfinished staging folder {leftover.name}")
+        done = self._staged.recover()
         if killed is None and not done:
             return
         self._notify(f"note: recovered from an earlier build of {self.target} that was killed"
@@ -215,33 +175,3 @@ def _describe(record: dict | None) -> str:
     if not record:
         return ""
     return f" (pid {record.get('pid')} on {record.get('host')}, started {record.get('started')})"
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-def _swap(new: Path, target: Path) -> None:
-    """Exchange two folders atomically if the kernel can; otherwise rename the old one aside first."""
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        renameat2 = libc.renameat2
-    except (OSError, AttributeError):
-        renameat2 = None
-    if renameat2 is not None:
-        result = renameat2(_AT_FDCWD, os.fsencode(new), _AT_FDCWD, os.fsencode(target), _RENAME_EXCHANGE)
-        if result == 0:
-            return
-        code = ctypes.get_errno()
-        if code not in (errno.ENOSYS, errno.EINVAL, errno.ENOTSUP, errno.EOPNOTSUPP):
-            raise OSError(code, os.strerror(code), str(target))
-    aside = new.with_name(new.name + "-old")
-    os.rename(target, aside)
-    try:
-        os.rename(new, target)
-    except OSError:
-        os.rename(aside, target)
-        raise
-    os.rename(aside, new)

@@ -14,13 +14,11 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from tavf_mapkit.fileutil import StagedFolder
 from tavf_mapkit.mesh.kinds import DRIVABLE_KINDS
 from tavf_mapkit.mesh.labelled import KIND_CODE, SURFACE_KINDS, LabelledMesh
 from tavf_mapkit.mesh.tiles import face_tiles, map_origin, solid_tiles
@@ -141,11 +139,10 @@ class _WorldWriter:
     """collision/ written tile by tile into a staging folder, put in place whole at the end."""
 
     def __init__(self, out_dir, grid: TileGrid, eps: float, georeference: dict):
-        self.out_dir = Path(out_dir)
-        self.out_dir.mkdir(parents=True, exist_ok=True)
         self.grid, self.eps, self.georeference = grid, eps, georeference
         self.origin = np.asarray(grid.origin, dtype=np.float64)
-        self.staging = Path(tempfile.mkdtemp(prefix=".collision-", dir=self.out_dir))
+        self.folder = StagedFolder(Path(out_dir) / "collision", what="the collision world").open()
+        self.staging = self.folder.staging
         (self.staging / "tiles").mkdir()
         self.bodies, self.tiles = [], {}
 
@@ -186,19 +183,8 @@ class _WorldWriter:
                        "triangles": int(sum(b["triangles"] for b in self.bodies))},
         }
         (self.staging / "world.json").write_text(json.dumps(world, indent=1) + "\n", encoding="utf-8")
-        _swap_in(self.staging, self.out_dir / "collision")
+        self.folder.commit()
         return world
 
     def abandon(self) -> None:
-        shutil.rmtree(self.staging, ignore_errors=True)
-
-
-def _swap_in(staging: Path, target: Path) -> None:
-    """Put the finished folder in place; an older one is moved aside first and removed afterwards."""
-    old = None
-    if target.exists():
-        old = target.with_name(f".{target.name}-old-{os.getpid()}")
-        os.replace(target, old)
-    os.replace(staging, target)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
+        self.folder.discard()

@@ -29,7 +29,7 @@ class Session:
     def __init__(self, config: DriveConfig, hooks: list[SessionHook] | None = None):
         from tavf_mapkit.lanegraph import LaneGraph
         from tavf_mapkit.opendrive import load_opendrive
-        from twin.session.outputs import OutputDir
+        from twin.session.outputs import output_folder
         from twin.sim.build import Build, georeference_for_driving
 
         started = time.perf_counter()
@@ -57,8 +57,8 @@ class Session:
         self.drive_config = config
         self.route = None  # a RecordedRoute for --route
         self._prepare_routes(config)  # before the world: a bad trace fails fast
-        self.output = OutputDir(config.out)
-        self.out_dir: Path = self.output.temp
+        self.output = output_folder(config.out)
+        self.out_dir: Path = self.output.staging
         self.world = None
         try:
             self._setup(config)

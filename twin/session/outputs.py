@@ -1,4 +1,5 @@
-"""Session outputs: a temporary folder renamed into place at the end, and the CSV/JSON writers.
+"""Session outputs: a staging folder put in place at the end (``fileutil.StagedFolder``), and the CSV/JSON
+writers.
 
 Numbers are written with fixed formats (not repr), so two runs with the same seed and inputs produce
 byte-identical files.
@@ -8,48 +9,22 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from tavf_mapkit.errors import InputError
+from tavf_mapkit.fileutil import StagedFolder
 
 TRAJECTORY_HEADER = "t,x,y,z,yaw,speed,lat,lon,road,lane"
 GNSS_HEADER = "t,lat,lon,alt,x,y,z"
 MARKER = "metrics.json"  # a folder holding this was written by twin drive and may be replaced
 
 
-class OutputDir:
-    """``path`` is where the outputs end up; ``temp`` is where they are written until ``commit()``."""
-
-    def __init__(self, path: str | Path):
-        self.path = Path(path)
-        if self.path.exists() and (not self.path.is_dir() or (any(self.path.iterdir())
-                                                               and not (self.path / MARKER).exists())):
-            raise InputError("output exists and is not a twin drive output folder; choose another --out",
-                             file=str(self.path))
-        parent = self.path.parent
-        try:
-            parent.mkdir(parents=True, exist_ok=True)
-            self.temp = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.tmp-", dir=parent))
-        except OSError as error:
-            raise InputError(f"cannot write the output folder: {error.strerror}", file=str(self.path)) from None
-
-    def commit(self) -> Path:
-        aside = None
-        if self.path.exists():
-            aside = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.old-", dir=self.path.parent))
-            os.rename(self.path, aside / "old")
-        os.rename(self.temp, self.path)
-        if aside is not None:
-            shutil.rmtree(aside, ignore_errors=True)
-        return self.path
-
-    def discard(self) -> None:
-        shutil.rmtree(self.temp, ignore_errors=True)
+def output_folder(path: str | Path) -> StagedFolder:
+    """``--out``, written in a staging folder beside it (``.staging``) until ``commit()`` puts it in place whole;
+    an existing folder is replaced only if twin drive wrote it."""
+    return StagedFolder(path, marker=MARKER, what="the output folder",
+                        refusal="output exists and is not a twin drive output folder; choose another --out").open()
 
 
 def _column(values: np.ndarray, digits: int) -> list[str]:
