@@ -6,6 +6,7 @@ import gzip
 
 import numpy as np
 import pytest
+import shapely
 
 from tavf_mapkit.mesh import KIND_CODE, build_road_surface
 from tavf_mapkit.mesh.cleanup import face_cross, triangle_areas
@@ -39,8 +40,22 @@ def test_reference_lane_borders_lie_on_the_mesh(name, eps):
     rows, points = _reference(name)
     distance = distance_to_mesh(surface.mesh.vertices, surface.mesh.faces, points, search_radius=0.5)
     in_junction = np.array([odr.road_by_id[str(road)].in_junction for road in rows["road"]])
-    # every border point of an ordinary road is within eps + 1 mm of the mesh
-    assert distance[~in_junction].max() <= eps + 1e-3, distance[~in_junction].max()
+    # road-side lanes that stood on another road's driving lane gave way to it (mesh.stacked: Town07's side
+    # street sidewalks, 12-15 cm above the through road); their border points there are above the mesh
+    road_index = np.array([odr.road_index[str(road)] for road in rows["road"]])
+    gave_way, inside = np.zeros(len(points), dtype=bool), np.zeros(len(points), dtype=bool)
+    for road, region in surface.given_way.items():
+        mine = np.flatnonzero(road_index == road)
+        gave_way[mine] = shapely.contains_xy(region.buffer(1e-6), points[mine, 0], points[mine, 1])
+        inside[mine] = shapely.contains_xy(region.buffer(-0.1), points[mine, 0], points[mine, 1])
+    assert inside.any() == (name == "test")
+    if inside.any():  # a driving lane 12-15 cm below them, and no road-side surface left at their height
+        below = distance_to_mesh(surface.mesh.vertices, surface.mesh.faces, points[inside] - [0, 0, 0.1],
+                                 search_radius=0.5)
+        assert distance[inside].min() > 0.1 and below.max() < 0.05
+    # every other border point of an ordinary road is within eps + 1 mm of the mesh
+    ordinary = ~in_junction & ~gave_way
+    assert distance[ordinary].max() <= eps + 1e-3, distance[ordinary].max()
     if in_junction.any():
         # junctions have one surface; where the file's connecting roads disagree in height (CARLA's Town07:
         # overlapping connecting lanes 0.65 m apart, neighbouring ones with 6 cm steps) no single surface

@@ -112,6 +112,33 @@ def test_a_one_way_dead_end_restarts():
     assert set(items[1::2]) == {RESTART} and set(items[::2]) == {LaneKey(0, 0, -1), LaneKey(1, 0, -1)}
 
 
+def _road(road_id, x, y, hdg, length, link="", lane_link=""):
+    return (f'<road id="{road_id}" length="{length}" junction="-1"><link>{link}</link>'
+            f'<planView><geometry s="0" x="{x}" y="{y}" hdg="{hdg}" length="{length}"><line/></geometry></planView>'
+            f'<lanes><laneSection s="0"><center><lane id="0" type="none"/></center>'
+            f'<right>{_lane(-1, link=lane_link)}</right></laneSection></lanes></road>')
+
+
+def test_a_lane_leading_only_into_a_bend_no_car_can_take_is_never_driven():
+    """Taipei: a left turn netconvert splits over two junctions, the second turning a right angle on the spot.
+    The step is rightly not driven, but the walk (restart mode: one-way roads leaving the map) still entered
+    the lane before it, stopped in the middle of the junction and restarted there. A dead end of our making is
+    no dead end of the map: such lanes are left out, so restarts happen where the map ends."""
+    graph, lines = _graph(
+        _road("1", 0, 0, 0, 80, link='<successor elementType="road" elementId="2" contactPoint="start"/>',
+              lane_link='<successor id="-1"/>'),
+        _road("2", 78.25, -1.75, math.pi / 2, 60, link='<predecessor elementType="road" elementId="1" contactPoint="end"/>',
+              lane_link='<predecessor id="-1"/>'),
+        _road("3", 0, 50, 0, 70))
+    first, second, other = LaneKey(0, 0, -1), LaneKey(1, 0, -1), LaneKey(2, 0, -1)
+    assert graph.successors(first) == [second]
+    routes = RandomRoutes(graph, lines)
+    assert routes.transitions.dropped[first, second].startswith("cuts a bend") and first in routes.transitions.blocked
+    assert routes.mode == "restart" and routes.lanes == {second, other}
+    items = _items(routes, 400, seed=2)
+    assert first not in items and set(items[1::2]) == {RESTART}
+
+
 def test_closed_loops_are_preferred_and_never_need_a_break(sample_build_dir):
     graph = LaneGraph.from_opendrive(load_opendrive(Build.open(sample_build_dir).xodr))
     routes = RandomRoutes(graph, LaneLines(graph))

@@ -18,7 +18,7 @@ from twin.control.pid import (
     split_acceleration,
 )
 from twin.control.purepursuit import PurePursuit
-from twin.planning.buffer import PathBuffer
+from twin.planning.buffer import PathBuffer, join_cut
 from twin.planning.chunks import PathChunk
 from twin.vehicle.params import MODEL_S
 
@@ -100,3 +100,21 @@ def test_curvature_limits_speed_and_the_end_of_a_finite_route_stops_the_car():
     allowed = buffer.allowed_speed(buffer.s[:, 0], 2.0)
     assert allowed[0] == pytest.approx(min(20.0, math.sqrt(2.5 * radius + 2 * 2.0 * 59.0)), rel=0.03)
     assert buffer.vmax[0, buffer.count[0] - 1] == 0.0 and buffer.exhausted[0]
+
+
+def test_a_chunk_that_starts_behind_the_paths_end_joins_on_a_diagonal_forwards():
+    """Taipei: a junction's connecting lane starts 4.7 m before the end of the road leading into it. The path
+    crosses over to its start on a straight diagonal (``join_cut``); the blend once shortened the path and then
+    appended the chunk behind the old end, so the path ran 4.7 m back: the car turned round after it, left
+    the path and hit a building."""
+    road = np.column_stack([np.arange(0.0, 60.0, 1.0), np.zeros(60), np.zeros(60)])
+    junction = np.column_stack([np.arange(55.0, 70.0, 1.0), np.full(15, 1.0), np.zeros(15)])
+    buffer = PathBuffer(1)
+    buffer.assign(0, iter([PathChunk(c, np.full(len(c), 10.0), np.full(len(c), k, dtype=np.int64))
+                           for k, c in enumerate((road, junction))]))
+    n = int(buffer.count[0])
+    x, y = buffer.x[0, :n], buffer.y[0, :n]
+    assert np.all(np.diff(x) > 0)  # forwards all the way
+    gap = math.hypot(55.0 - 59.0, 1.0)
+    assert x[buffer.lane[0, :n] == 0].max() == pytest.approx(59.0 - join_cut(gap), abs=1.0)
+    assert (x[-1], y[-1]) == (69.0, 1.0) and np.all(np.diff(buffer.s[0, :n]) > 0)

@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
+import shapely
 
 from tavf_mapkit.mesh.adaptive import AdaptiveSamples, adaptive_samples
 from tavf_mapkit.mesh.cleanup import drop_degenerate
 from tavf_mapkit.mesh.junctions import junction_surfaces
+from tavf_mapkit.mesh.kinds import lane_kind_codes
 from tavf_mapkit.mesh.labelled import KIND_CODE, LabelledMesh
 from tavf_mapkit.mesh.lanes import build_lane_meshes, raised_lane_rows
+from tavf_mapkit.mesh.stacked import cut_stacked_roadside
 from tavf_mapkit.mesh.units import MeshUnits, mesh_units
 from tavf_mapkit.opendrive.sampling import sample_lanes_at
 
@@ -28,6 +31,8 @@ class RoadSurface:
     junction_footprints: dict  # junction id -> shapely (Multi)Polygon of its surface in plan view
     junction_lanes: LabelledMesh  # the connecting lanes' own meshes (overlapping), replaced in ``mesh``
     eps: float
+    # road index -> plan region cut out of its road-side lanes, which stood on another road's driving lane
+    given_way: dict = field(default_factory=dict)
 
 
 def build_road_surface(odr, eps: float = DEFAULT_EPS, junction_cell: float = JUNCTION_CELL,
@@ -46,11 +51,40 @@ def build_road_surface(odr, eps: float = DEFAULT_EPS, junction_cell: float = JUN
     junction_face = (in_junction[lanes.road_index] & ~raised[face_row] if len(face_row)
                      else np.zeros(0, dtype=bool)) & (lanes.kind != KIND_CODE["curb"])
     junction_lanes = lanes.select(junction_face)
+    # road-side faces standing on another road's driving lane give way to it (mesh.stacked); where that cuts a
+    # raised connecting lane, its junction's surface is not cut out under it either
+    own_lanes, stacked = cut_stacked_roadside(lanes.select(~junction_face),
+                                              _driving_around(odr, lanes, units, roads, eps, max_segment))
+    uncovered = [region for road, region in sorted(stacked.items()) if in_junction[road]]
     junctions = junction_surfaces(odr, sampling, junction_lanes, raised, junction_cell, eps,
-                                  group_of_road=units.road_unit)
-    mesh = drop_degenerate(LabelledMesh.concatenate([lanes.select(~junction_face), junctions.mesh]))
+                                  group_of_road=units.road_unit,
+                                  uncovered=shapely.union_all(uncovered) if uncovered else None)
+    mesh = drop_degenerate(LabelledMesh.concatenate([own_lanes, junctions.mesh]))
     mesh = mesh.grouped(units.road_unit[mesh.road_index])
-    return RoadSurface(mesh, samples, junctions.footprints, junction_lanes, eps)
+    return RoadSurface(mesh, samples, junctions.footprints, junction_lanes, eps, stacked)
+
+
+def _driving_around(odr, lanes: LabelledMesh, units: MeshUnits, roads: np.ndarray | None, eps: float,
+                    max_segment: float) -> LabelledMesh:
+    """The driving-lane faces of the roads meshed here and of every other road whose coarse box meets one of
+    theirs with road-side lanes (meshed the same way they are in their own batch: a unit's surface never
+    depends on its batch)."""
+    driving = lanes.kind == KIND_CODE["driving"]
+    roadside = np.unique(lanes.road_index[~driving & (lanes.kind != KIND_CODE["curb"])])
+    meshed = np.unique(lanes.road_index) if roads is None else np.asarray(roads)
+    if not len(roadside):
+        return lanes.select(driving)
+    boxes = shapely.box(*units.road_box.T)
+    _, near = shapely.STRtree(boxes).query(boxes[roadside], predicate="intersects")
+    missing = np.setdiff1d(np.unique(near), meshed)
+    missing = missing[np.isin(missing, odr.arrays.section_road[odr.arrays.lane_section[
+        lane_kind_codes(odr.arrays.lane_type) == KIND_CODE["driving"]]])]
+    if not len(missing):
+        return lanes.select(driving)
+    sections = np.flatnonzero(np.isin(odr.arrays.section_road, missing))
+    samples = adaptive_samples(odr, eps, max_segment, sections=sections)
+    around, _ = build_lane_meshes(odr, sample_lanes_at(odr, samples.section, samples.s))
+    return LabelledMesh.concatenate([lanes.select(driving), around.select(around.kind == KIND_CODE["driving"])])
 
 
 def road_surface(odr, eps: float = DEFAULT_EPS) -> LabelledMesh:

@@ -135,6 +135,7 @@ class PathBuffer:
                 chunk = chunk.slice(1)
             elif gap > JOIN_GAP:
                 chunk = self._blend(i, chunk, gap)
+                n = int(self.count[i])  # the blend shortened the path: the chunk joins where it now ends
             points = chunk.points
         if not len(points):
             return

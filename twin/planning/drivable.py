@@ -125,11 +125,14 @@ def undrivable_lanes(graph: LaneGraph, lines: LaneLines, radius: float | None = 
 @dataclass
 class Transitions:
     """Steps between drivable lanes of at least ``DEGENERATE_LANE``: ``follow`` a car drives; ``u_turn``
-    only by turning around (through a U-turn lane or a U-turn step); ``dropped`` with their reason."""
+    only by turning around (through a U-turn lane or a U-turn step); ``dropped`` with their reason;
+    ``blocked``: lanes the map leads on from, but only into a bend the car cannot drive (a dropped step or an
+    undrivable lane ahead), so where such a lane has no other way on, the dead end is ours, not the map's."""
 
     follow: dict[LaneKey, list[LaneKey]] = field(default_factory=dict)
     u_turn: dict[LaneKey, list[LaneKey]] = field(default_factory=dict)
     dropped: dict[tuple[LaneKey, LaneKey], str] = field(default_factory=dict)
+    blocked: set[LaneKey] = field(default_factory=set)
 
 
 def lane_transitions(graph: LaneGraph, lines: LaneLines, undrivable: dict[LaneKey, str],
@@ -158,6 +161,8 @@ def lane_transitions(graph: LaneGraph, lines: LaneLines, undrivable: dict[LaneKe
                         if u_turn_lane or (b not in undrivable and lines[b].length < DEGENERATE_LANE):
                             seen.add((b, turned))
                             ahead.append((b, turned or u_turn_lane))
+                        elif b in undrivable and not turned:
+                            result.blocked.add(a)
             frontier = ahead
         result.u_turn[a] = sorted(turned_to)
     candidates = sorted(set(candidates))
@@ -174,6 +179,7 @@ def lane_transitions(graph: LaneGraph, lines: LaneLines, undrivable: dict[LaneKe
             result.u_turn[a].append(b)
         elif worst > max_cut:
             result.dropped[a, b] = f"cuts a bend by {worst:.1f} m"
+            result.blocked.add(a)
         else:
             result.follow[a].append(b)
     for a in result.u_turn:

@@ -19,6 +19,11 @@ Where the walk goes, in order of preference:
 3. ``restart``: neither exists (one-way dead ends only): the walk drives until a dead end, then restarts
    on a new random lane.
 
+Dead ends of our own making are left out first: a lane the map leads on from, but only into a bend the car
+cannot drive, with no lane change towards a lane that drives on and nowhere to turn around, is dropped, and so
+is a lane that leads only into dropped ones (the walk would stop in the middle of a junction and restart there).
+Restarts and turnarounds happen where the map ends.
+
 Turnarounds and restarts appear in the walk as ``RouteBreak`` items; the twin performs them (docs/twin.md).
 Inside the chosen lanes every lane has a way on, lane changes are only made towards a lane that can drive
 on (or once, voluntarily, into a lane that can), so a run of lane changes is bounded by the lanes of one
@@ -58,6 +63,9 @@ class RandomRoutes:
         for a, b, kind in graph.graph.edges(data="kind"):
             if kind != "follow" and a in keep and b in keep:
                 lateral[a].append(b)
+        keep = self._without_blocked_ends(keep, follow, lateral)
+        follow = {k: [b for b in follow[k] if b in keep] for k in keep}
+        lateral = {k: [b for b in lateral[k] if b in keep] for k in keep}
         turnaround = self._turnarounds(keep, follow)
         loop = self._largest_progressing(keep, follow, lateral, {})
         turning = self._largest_progressing(keep, follow, lateral, turnaround)
@@ -78,27 +86,79 @@ class RandomRoutes:
         self._towards = self._lane_changes_to_exits()
 
     # ------------------------------------------------------------------ construction
-    def _turnarounds(self, keep: set[LaneKey], follow: dict) -> dict[LaneKey, list[LaneKey]]:
-        """Dead-end lane -> [where a car turns around: the nearest drivable lane of the opposite direction
-        that netconvert's turnaround from the lane's end leads into (a U-turn the car cannot drive in lane),
-        or that enters the same lane section at its end]."""
-        graph, lines = self.graph, self.lines
+    @staticmethod
+    def _by_section(keep) -> dict[tuple[int, int], list[LaneKey]]:
         by_section: dict[tuple[int, int], list[LaneKey]] = {}
         for key in sorted(keep):
             by_section.setdefault((key.road_index, key.section_index), []).append(key)
+        return by_section
+
+    def _turnaround_target(self, key: LaneKey, keep, by_section) -> LaneKey | None:
+        """Where a car at the end of dead-end lane ``key`` turns around: the nearest drivable lane of the
+        opposite direction that netconvert's turnaround from the lane's end leads into (a U-turn the car
+        cannot drive in lane), or that enters the same lane section at its end; None without one."""
+        graph, lines = self.graph, self.lines
+        forward = graph.drives_with_s(key)
+        targets = {k for k in self.transitions.u_turn[key] if k in keep}
+        targets.update(k for k in by_section.get((key.road_index, key.section_index), ())
+                       if k in keep and graph.drives_with_s(k) is not forward)
+        if not targets:
+            return None
+        end = lines[key].points[-1, :2]
+        return min(targets, key=lambda k: (float(np.hypot(*(lines[k].points[0, :2] - end))), k))
+
+    def _turnarounds(self, keep: set[LaneKey], follow: dict) -> dict[LaneKey, list[LaneKey]]:
+        """Dead-end lane -> [where a car turns around (``_turnaround_target``)]."""
+        by_section = self._by_section(keep)
         found = {}
         for key in sorted(keep):
-            if follow[key]:
-                continue
-            forward = graph.drives_with_s(key)
-            targets = set(self.transitions.u_turn[key])
-            targets.update(k for k in by_section[(key.road_index, key.section_index)]
-                           if graph.drives_with_s(k) is not forward)
-            if targets:
-                end = lines[key].points[-1, :2]
-                found[key] = [min(targets, key=lambda k: (float(np.hypot(*(lines[k].points[0, :2] - end))),
-                                                            k))]
+            if not follow[key]:
+                target = self._turnaround_target(key, keep, by_section)
+                if target is not None:
+                    found[key] = [target]
         return found
+
+    def _without_blocked_ends(self, keep: set[LaneKey], follow: dict, lateral: dict) -> set[LaneKey]:
+        """``keep`` without the lanes that lead only into dead ends of our own making. A lane the map leads
+        on from, but only through a bend the car cannot drive (``Transitions.blocked``), or only into lanes
+        dropped here, is dropped when it has no lane to turn around into and no lane change towards a lane
+        that drives on. A walk that entered it would stop in the middle of a junction and restart there
+        (Taipei: a left turn that netconvert splits over two junctions, the second turning a right angle on
+        the spot). Lanes where the map itself ends stay: that is where restarts and turnarounds belong.
+        Only walks without a closed loop can reach such lanes: the loop and turnaround components keep a
+        way on for every lane by construction."""
+        keep = set(keep)
+        blocked = self.transitions.blocked
+
+        def map_ends(k):
+            return not follow[k] and k not in blocked
+
+        def drives_on(k, by_section):
+            if any(b in keep for b in follow[k]) or map_ends(k):
+                return True
+            return self._turnaround_target(k, keep, by_section) is not None
+
+        while True:
+            by_section = self._by_section(keep)
+            stuck = [k for k in sorted(keep) if not drives_on(k, by_section)]
+            # a lane change towards a lane that drives on is a way on, too (runs of changes stay in a section)
+            dropped = []
+            for k in stuck:
+                seen, queue = {k}, deque([k])
+                found = False
+                while queue and not found:
+                    for b in lateral[queue.popleft()]:
+                        if b in keep and b not in seen:
+                            if drives_on(b, by_section):
+                                found = True
+                                break
+                            seen.add(b)
+                            queue.append(b)
+                if not found:
+                    dropped.append(k)
+            if not dropped:
+                return keep
+            keep.difference_update(dropped)
 
     def _length(self, lanes) -> float:
         return float(sum(self.lines[k].length for k in lanes))
