@@ -258,8 +258,8 @@ def test_process_client_answers_like_the_thread_client_and_survives_its_child(ud
         assert t_publish <= response.t_sent <= response.t_received  # one clock across both processes
         assert not client.submit(math.nan, 9.99, frame=4)
         assert [r.status for r in client.poll()] == [INVALID_FIX]
-        client._process.kill()  # the child dies: the caller still never sees an exception
-        client._process.wait(5)
+        client._child.process.kill()  # the child dies: the caller still never sees an exception
+        client._child.process.wait(5)
         deadline = time.monotonic() + 5.0
         while client.submit(*HAMBURG, frame=5) and time.monotonic() < deadline:
             time.sleep(0.01)

@@ -21,23 +21,15 @@ intermediate position -- the same "newest state wins" as the publisher's merging
 
 from __future__ import annotations
 
-import json
+import copy
 import math
-import pickle
-import signal
-import sys
-import threading
 import time
-from collections import Counter
-from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any, Self
 
-from twin.childproc import spawn_child, stop_child
+from twin.childproc import ChildProcess, Parent, serve
 from twin.traffic.publish import PublisherStats
 from twin.traffic.sumo import SignalLinks, TrafficSnapshot
-
-_START_TIMEOUT_S = 30.0
 
 
 class TrafficPublisherProcess:
@@ -48,7 +40,6 @@ class TrafficPublisherProcess:
                  links: SignalLinks, *, period_sim_s: float, validity_periods: float = 3.0,
                  min_interval_s: float | None = None, timeout_s: float = 1.0, source: str = "sumo") -> None:
         self.base_url = base_url
-        self.stats = PublisherStats()
         # default 0: every batch of simulated time is posted, so the UDM sees 10 Hz of simulated time however
         # fast the twin runs; a wall-time floor (e.g. half the period) protects a server that cannot keep up
         self.min_interval_s = 0.0 if min_interval_s is None else max(0.0, float(min_interval_s))
@@ -56,32 +47,24 @@ class TrafficPublisherProcess:
         self.held = 0  # snapshots replaced by a newer one before they were handed over
         self._held: tuple[TrafficSnapshot, list[dict]] | None = None
         self._last_send = -math.inf
-        self._process, self._conn = spawn_child("twin.traffic.publish_process")
-        self._lock = threading.Lock()
-        self._closed = False
+        self._errors = 0  # snapshots the child could not be given (it is gone)
         settings = {"base_url": base_url, "token": token, "net": str(net_path), "xodr": str(xodr_path),
-                    "period_sim_s": float(period_sim_s), "validity_periods": float(validity_periods),
-                    "timeout_s": float(timeout_s),
-                    "source": source}
-        try:
-            self._conn.send_bytes(json.dumps(settings).encode())
-            self._conn.send_bytes(pickle.dumps(links, protocol=pickle.HIGHEST_PROTOCOL))
-            if not self._conn.poll(_START_TIMEOUT_S):
-                raise EOFError
-            kind, payload = self._conn.recv()
-            if kind != "ready":
-                raise RuntimeError(payload)
-        except (EOFError, OSError, RuntimeError) as error:
-            self._process.kill()
-            self._process.wait()
-            self._conn.close()
-            raise RuntimeError(f"the traffic publisher process did not start: {error}") from None
+                    "links": links, "period_sim_s": float(period_sim_s),
+                    "validity_periods": float(validity_periods), "timeout_s": float(timeout_s), "source": source}
+        self._child = ChildProcess("twin.traffic.publish_process", "the traffic publisher process", settings)
+
+    @property
+    def stats(self) -> PublisherStats:
+        stats = copy.deepcopy(self._child.stats) or PublisherStats()
+        if self._errors:
+            stats.errors["publisher_process"] += self._errors
+        return stats
 
     def publish(self, snapshot: TrafficSnapshot, extra: list[dict] | None = None) -> bool:
         """Hand one snapshot (and extra features, e.g. perception) to the child, or hold it if the last one
         went less than ``min_interval_s`` ago; False if the child is gone."""
-        with self._lock:
-            if self._closed:
+        with self._child.lock:
+            if self._child.closed:
                 return False
             extra = (self._held[1] if self._held is not None else []) + (extra or [])
             if self._held is not None:
@@ -98,39 +81,22 @@ class TrafficPublisherProcess:
         self._held = None
         self._last_send = time.monotonic()
         try:
-            self._conn.send_bytes(pickle.dumps(("snapshot", snapshot, extra or None),
-                                               protocol=pickle.HIGHEST_PROTOCOL))
+            self._child.send("snapshot", snapshot, extra or None)
             self.sent += 1
             return True
         except (OSError, ValueError):
-            self.stats.errors["publisher_process"] += 1
+            self._errors += 1
             return False
 
     def flush(self, timeout_s: float = 5.0) -> bool:
         """Wait until everything published so far (a held snapshot too) was posted; False on timeout."""
-        with self._lock:
-            if self._closed:
-                return False
-            try:
+        with self._child.lock:
+            if not self._child.closed:
                 self._send_held()
-                self._conn.send_bytes(pickle.dumps(("flush", timeout_s)))
-                return self._wait_for("flushed", timeout_s + 1.0)
-            except (OSError, EOFError, ValueError):
-                return False
+            return self._child.ask("flush", timeout_s, "flushed")
 
     def close(self, timeout_s: float = 5.0) -> None:
-        with self._lock:
-            if self._closed:
-                return
-            self._closed = True
-            try:
-                self._send_held()
-                self._conn.send_bytes(pickle.dumps(("close", timeout_s)))
-                self._wait_for("closed", timeout_s + 1.0)
-            except (OSError, EOFError, ValueError):
-                pass
-            self._conn.close()
-        stop_child(self._process, timeout_s)
+        self._child.close(timeout_s, before=self._send_held)
 
     def __enter__(self) -> Self:
         return self
@@ -138,88 +104,50 @@ class TrafficPublisherProcess:
     def __exit__(self, *exc_info: object) -> None:
         self.close()
 
-    def _wait_for(self, wanted: str, timeout_s: float) -> bool:
-        deadline = time.monotonic() + timeout_s
-        while True:
-            remaining = deadline - time.monotonic()
-            if remaining <= 0 or not self._conn.poll(remaining):
-                return False
-            kind, payload, stats = self._conn.recv()
-            self.stats = _stats_from(stats)
-            if kind == wanted:
-                return bool(payload)
 
-
-def _stats_to(stats: PublisherStats) -> dict[str, Any]:
-    return {"batches": stats.batches, "posts": stats.posts, "objects": stats.objects,
-            "errors": dict(stats.errors), "post_seconds": list(stats.post_seconds), "last_error": stats.last_error}
-
-
-def _stats_from(data: dict[str, Any]) -> PublisherStats:
-    return PublisherStats(data["batches"], data["posts"], data["objects"], Counter(data["errors"]),
-                          data["post_seconds"], data["last_error"])
-
-
-def _child_main(conn: Connection) -> None:
+def _serve(settings: dict[str, Any], parent: Parent) -> None:
     """Read snapshots, publish the newest of those waiting, answer flush and close."""
     from twin.traffic.frames import NetFrame
     from twin.traffic.publish import TrafficPublishing, UdmPublisher
 
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle; it closes us
-    settings = json.loads(conn.recv_bytes())
-    links = pickle.loads(conn.recv_bytes())
-    try:
-        frame = NetFrame.from_files(settings["net"], settings["xodr"])
-        publisher = UdmPublisher(settings["base_url"], settings["token"], timeout_s=settings["timeout_s"])
-    except Exception as error:  # noqa: BLE001 -- reported to the parent, which raises it
-        conn.send(("error", f"{type(error).__name__}: {error}"))
-        return
-    publishing = TrafficPublishing(publisher, frame, links, period_sim_s=settings["period_sim_s"],
+    frame = NetFrame.from_files(settings["net"], settings["xodr"])
+    publisher = UdmPublisher(settings["base_url"], settings["token"], timeout_s=settings["timeout_s"])
+    publishing = TrafficPublishing(publisher, frame, settings["links"], period_sim_s=settings["period_sim_s"],
                                    validity_periods=settings["validity_periods"], source=settings["source"])
-    conn.send(("ready", None))
 
-    def send(kind: str, payload: Any) -> None:
-        with publisher._lock:
-            stats = _stats_to(publisher.stats)
-        conn.send((kind, payload, stats))
+    def stats() -> PublisherStats:
+        with publisher._lock:  # the publisher's worker thread updates them
+            return copy.deepcopy(publisher.stats)
 
+    parent.stats = stats
+    parent.ready()
     closing = None
     try:
         while closing is None:
             newest: TrafficSnapshot | None = None
             extra: list[dict] = []
             flush = None
-            try:
-                message = pickle.loads(conn.recv_bytes())  # block until there is something to do
-                while True:
-                    kind = message[0]
-                    if kind == "snapshot":
-                        newest = message[1]
-                        extra += message[2] or []
-                    elif kind == "flush":
-                        flush = float(message[1])
-                    elif kind == "close":
-                        closing = float(message[1])
-                        break
-                    if not conn.poll(0):
-                        break
-                    message = pickle.loads(conn.recv_bytes())
-            except (EOFError, OSError):
+            for message in parent.waiting(block=True):  # block until there is something to do
+                kind = message[0]
+                if kind == "snapshot":
+                    newest = message[1]
+                    extra += message[2] or []
+                elif kind == "flush":
+                    flush = float(message[1])
+                elif kind == "close":
+                    closing = float(message[1])
+                    break
+            if parent.gone:
                 closing = 1.0  # the parent is gone: post what is queued, briefly, and stop
             if newest is not None:
                 publishing.publish(newest, extra)
             elif extra:
                 publisher.publish(extra)
-            if flush is not None:
-                send("flushed", publisher.flush(flush))
+            if flush is not None and not parent.gone:
+                parent.send("flushed", publisher.flush(flush))
     finally:
         publisher.close(closing or 1.0)
-        try:
-            send("closed", True)
-        except (OSError, ValueError):
-            pass
-        conn.close()
 
 
 if __name__ == "__main__":
-    _child_main(Connection(int(sys.argv[1])))
+    serve(_serve, "the traffic publisher process")

@@ -13,20 +13,13 @@ of the machine, so latencies measured in the child and publish times taken in th
 
 from __future__ import annotations
 
-import json
 import math
-import signal
-import sys
-import threading
 import time
 from collections import deque
-from multiprocessing.connection import Connection
 from typing import Any, Self
 
-from twin.childproc import spawn_child, stop_child
+from twin.childproc import ChildProcess, Parent, serve
 from twin.udm.client import INTERNAL, INVALID_FIX, ClientStats, UdmClient, UdmQuery, UdmResponse
-
-_START_TIMEOUT_S = 30.0
 
 
 class UdmProcessClient:
@@ -34,22 +27,12 @@ class UdmProcessClient:
 
     def __init__(self, base_url: str = "http://127.0.0.1:8765", **client_options: Any) -> None:
         self.base_url = base_url
-        self._process, self._conn = spawn_child("twin.udm.process_client", base_url, json.dumps(client_options))
-        self._stats = ClientStats()
+        # returns once the child's client exists, so the first query's latency does not include the spawn
+        self._child = ChildProcess("twin.udm.process_client", "the UDM client process",
+                                   {"base_url": base_url, "options": client_options})
         self._local: list[UdmResponse] = []  # answers made here (invalid fix, broken pipe) or read during flush
         self._local_errors: dict[str, int] = {}
-        self._closed = False
         self._sent = 0  # queries handed to the child
-        self._lock = threading.Lock()
-        # Wait until the child's client exists, so the first query's latency does not include the spawn.
-        try:
-            if not self._conn.poll(_START_TIMEOUT_S):
-                raise EOFError
-            self._conn.recv()
-        except (EOFError, OSError):
-            self._process.kill()
-            self._process.wait()
-            raise RuntimeError("the UDM client process did not start") from None
 
     # --- the caller's side ---------------------------------------------------------------------------------
 
@@ -61,10 +44,10 @@ class UdmProcessClient:
                                            error=f"invalid fix lat={lat} lon={lon} side_m={side_m}"))
             return False
         try:
-            with self._lock:
-                if self._closed:
+            with self._child.lock:
+                if self._child.closed:
                     return False
-                self._conn.send(("query", float(lat), float(lon), float(side_m), frame, t_publish))
+                self._child.send("query", float(lat), float(lon), float(side_m), frame, t_publish)
                 self._sent += 1
             return True
         except (OSError, ValueError) as error:  # the child is gone; report it like any failed query
@@ -73,19 +56,21 @@ class UdmProcessClient:
             return False
 
     def poll(self) -> list[UdmResponse]:
-        with self._lock:
+        with self._child.lock:
             responses, self._local = self._local, []
-            responses += self._drain(block_for=None)
+            if not self._child.closed:
+                self._child.read_waiting(self._take)
+                responses, self._local = responses + self._local, []
         return sorted(responses, key=lambda response: response.t_received)
 
     def stats(self) -> ClientStats:
         """The child's counters as of its last message. After ``close``, queries the child never reported on
         (it was stopped mid-request, or died) count as abandoned, so every sent query is accounted for."""
-        with self._lock:
-            stats = self._stats
+        with self._child.lock:
+            stats = self._child.stats or ClientStats()
             errors = dict(stats.errors)
             abandoned = stats.abandoned
-            if self._closed:
+            if self._child.closed:
                 reported = stats.ok + sum(stats.errors.values()) + stats.dropped + stats.abandoned
                 abandoned += max(0, self._sent - reported)
             for status, count in self._local_errors.items():
@@ -95,37 +80,11 @@ class UdmProcessClient:
 
     def flush(self, timeout_s: float = 5.0) -> bool:
         """Wait until every query sent so far has an answer (kept for the next ``poll``); False on timeout."""
-        deadline = time.monotonic() + timeout_s
-        with self._lock:
-            if self._closed:
-                return False
-            try:
-                self._conn.send(("flush", timeout_s))
-                while True:
-                    remaining = deadline - time.monotonic() + 1.0  # the child times out first
-                    if remaining <= 0 or not self._conn.poll(remaining):
-                        return False
-                    kind, payload, stats = self._conn.recv()
-                    self._stats = stats
-                    if kind == "answers":
-                        self._local += payload
-                    elif kind == "flushed":
-                        return bool(payload)
-            except (OSError, EOFError, ValueError):
-                return False
+        with self._child.lock:
+            return self._child.ask("flush", timeout_s, "flushed", self._take)
 
     def close(self, timeout_s: float = 5.0) -> None:
-        with self._lock:
-            if self._closed:
-                return
-            self._closed = True
-            try:
-                self._conn.send(("close", timeout_s))
-                self._local += self._drain(block_for=timeout_s + 1.0)
-            except (OSError, EOFError, ValueError):
-                pass
-            self._conn.close()
-        stop_child(self._process, timeout_s)
+        self._child.close(timeout_s, self._take)
 
     def __enter__(self) -> Self:
         return self
@@ -135,28 +94,18 @@ class UdmProcessClient:
 
     # --- internals -----------------------------------------------------------------------------------------
 
-    def _drain(self, block_for: float | None) -> list[UdmResponse]:
-        """Answers waiting in the pipe; with ``block_for``, read until the child says it closed."""
-        responses: list[UdmResponse] = []
-        try:
-            while self._conn.poll(block_for or 0):
-                kind, payload, stats = self._conn.recv()
-                self._stats = stats
-                if kind == "answers":
-                    responses += payload
-                elif kind == "closed":
-                    break
-        except (OSError, EOFError, ValueError):
-            pass
-        return responses
+    def _take(self, kind: str, payload: Any) -> None:
+        """A message of the child's (the lock is held): its answers are kept for the next ``poll``."""
+        if kind == "answers":
+            self._local += payload
 
     def _local_answer(self, response: UdmResponse) -> None:
-        with self._lock:
+        with self._child.lock:
             self._local.append(response)
             self._local_errors[response.status] = self._local_errors.get(response.status, 0) + 1
 
 
-def _child_main(conn: Connection, base_url: str, client_options: dict[str, Any]) -> None:
+def _serve(settings: dict[str, Any], parent: Parent) -> None:
     """The child: one thread that reads queries from the pipe, asks the UDM, and sends each answer back.
 
     One thread on purpose: every hand-over between threads is a wake-up the OS may schedule late on a busy
@@ -164,61 +113,45 @@ def _child_main(conn: Connection, base_url: str, client_options: dict[str, Any])
     pipe is drained into a bounded queue that keeps the newest ``queue_size`` (the oldest are dropped,
     as in ``UdmClient``).
     """
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle; it closes us
-    queue_size = max(1, int(client_options.pop("queue_size", 8)))
-    client = UdmClient(base_url, start_worker=False, **client_options)
+    options = dict(settings["options"])
+    queue_size = max(1, int(options.pop("queue_size", 8)))
+    client = UdmClient(settings["base_url"], start_worker=False, **options)
+    parent.stats = client.stats
     pending: deque[UdmQuery] = deque(maxlen=queue_size)
-
-    def send(kind: str, payload: Any) -> None:
-        conn.send((kind, payload, client.stats()))
-
-    def take(message: tuple) -> str:
-        kind = message[0]
-        if kind == "query":
-            _, lat, lon, side_m, frame, t_publish = message
-            if len(pending) == pending.maxlen:
-                client.count("dropped")
-            pending.append(UdmQuery(frame, lat, lon, side_m, t_publish))
-            client.count("submitted")
-        elif kind == "flush":
-            flush_until.append(time.monotonic() + float(message[1]))
-        return kind
-
     flush_until: list[float] = []
-    send("ready", None)
+    parent.ready()
     with client.open_http() as http:
         try:
             while True:
-                try:
-                    # Block only when there is nothing to do; then take everything that is waiting.
-                    kind = take(conn.recv()) if not pending and not flush_until else ""
-                    while kind != "close" and conn.poll(0):
-                        kind = take(conn.recv())
-                except (EOFError, OSError):
-                    break  # the parent is gone
-                if kind == "close":
+                # block only when there is nothing to do; then take everything that is waiting
+                closing = False
+                for message in parent.waiting(block=not pending and not flush_until):
+                    kind = message[0]
+                    if kind == "query":
+                        _, lat, lon, side_m, frame, t_publish = message
+                        if len(pending) == pending.maxlen:
+                            client.count("dropped")
+                        pending.append(UdmQuery(frame, lat, lon, side_m, t_publish))
+                        client.count("submitted")
+                    elif kind == "flush":
+                        flush_until.append(time.monotonic() + float(message[1]))
+                    elif kind == "close":
+                        closing = True
+                        break
+                if closing or parent.gone:
                     break
                 if pending:
                     if flush_until and time.monotonic() > flush_until[0]:
                         flush_until.clear()
-                        send("flushed", False)
+                        parent.send("flushed", False)
                         continue
-                    send("answers", [client.fetch(http, pending.popleft())])
+                    parent.send("answers", [client.fetch(http, pending.popleft())])
                 elif flush_until:
                     flush_until.clear()
-                    send("flushed", True)
+                    parent.send("flushed", True)
         finally:
             client.count("abandoned", len(pending))
-            try:
-                send("closed", None)
-            except (OSError, ValueError):
-                pass
-            conn.close()
 
 
 if __name__ == "__main__":
-    _options = json.loads(sys.argv[3])
-    for _key in ("layers", "types"):
-        if _options.get(_key) is not None:
-            _options[_key] = tuple(_options[_key])
-    _child_main(Connection(int(sys.argv[1])), sys.argv[2], _options)
+    serve(_serve, "the UDM client process")
