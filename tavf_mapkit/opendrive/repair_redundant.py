@@ -7,9 +7,10 @@ OpenDRIVE 1.7 on) warns about each pair, as it does about an elevation, superele
 border record that only continues the polynomial of the record before it. The validator's
 ``geometry.redundant-record`` finds the same records (``redundant_lines``, ``redundant_records``).
 
-The repair merges a line into the line before it when both have the same heading (within ``HEADING_TOLERANCE``)
-and the merged line passes within ``POSITION_TOLERANCE`` of both ends of the second, so no point of the
-reference line moves by more than that; s is unchanged (the merged line ends where the second did). A record
+The repair merges a run of lines whose headings agree within ASAM's tolerance (netconvert writes headings to 8
+decimals: Milan's collinear lines differ by 1.4e-7 rad) into one line from the run's start to its end, when that
+line passes within ``POSITION_TOLERANCE`` (10 micrometres) of every joint of the run, so no point of the reference
+line moves by more than that; s is unchanged (the merged line ends where the run did). A record
 that continues the one before it is dropped: the one before it now governs its range, with values equal within
 ``EQUATION_TOLERANCE``. A file with nothing redundant is returned unchanged, so the repair is idempotent.
 """
@@ -30,10 +31,8 @@ MERGED_RECORDS = "merged redundant records"
 
 #: ASAM's tolerance: headings (rad) and polynomial coefficients this close are the same
 EQUATION_TOLERANCE = 1e-6
-#: lines are merged only when their headings agree this well (rad) ...
-HEADING_TOLERANCE = 1e-9
-#: ... and the merged line passes this close (m) to both ends of the second one
-POSITION_TOLERANCE = 1e-6
+#: lines are merged only when the merged line passes this close (m) to every joint of the lines it replaces
+POSITION_TOLERANCE = 1e-5
 
 
 def _heading_difference(a: float, b: float) -> float:
@@ -67,25 +66,53 @@ def _without(profile: CubicProfile, drop: np.ndarray) -> CubicProfile:
     return replace(profile, s0=profile.s0[keep], coefficients=profile.coefficients[keep])
 
 
+def _line_end(geometry) -> tuple[float, float]:
+    return (geometry.x + geometry.length * np.cos(geometry.hdg), geometry.y + geometry.length * np.sin(geometry.hdg))
+
+
+def _one_line(run: list):
+    """The single line that replaces a run of lines, or None when it would move a point of the reference line by
+    more than ``POSITION_TOLERANCE``. It starts where the run starts, runs to where the run ends (its heading the
+    chord's, the first line's when all headings are equal) and keeps the run's s range."""
+    first, last = run[0], run[-1]
+    length = float(last.s + last.length - first.s)
+    end_x, end_y = _line_end(last)
+    hdg = first.hdg if all(g.hdg == first.hdg for g in run) else \
+        float(first.hdg + np.arctan2(np.sin(np.arctan2(end_y - first.y, end_x - first.x) - first.hdg),
+                                     np.cos(np.arctan2(end_y - first.y, end_x - first.x) - first.hdg)))
+    merged = replace(first, hdg=hdg, length=length)
+    cos, sin = np.cos(hdg), np.sin(hdg)
+    for geometry in run:
+        for s, (x, y) in ((geometry.s, (geometry.x, geometry.y)), (geometry.s + geometry.length, _line_end(geometry))):
+            along = s - first.s
+            if np.hypot(first.x + along * cos - x, first.y + along * sin - y) > POSITION_TOLERANCE:
+                return None
+    return merged
+
+
 def _merged_lines(geometries) -> tuple[tuple, int]:
-    """(geometries with mergeable line pairs merged, how many merged)."""
-    out = [geometries[0]] if geometries else []
-    for geometry in geometries[1:]:
-        before = out[-1]
-        if (geometry.kind == GeometryKind.LINE and before.kind == GeometryKind.LINE
-                and _heading_difference(geometry.hdg, before.hdg) < HEADING_TOLERANCE):
-            end_s = geometry.s + geometry.length
-            cos, sin = np.cos(before.hdg), np.sin(before.hdg)
-            # the merged line at the second's start and end
-            start_x, start_y = before.x + (geometry.s - before.s) * cos, before.y + (geometry.s - before.s) * sin
-            end_x, end_y = before.x + (end_s - before.s) * cos, before.y + (end_s - before.s) * sin
-            stop_x, stop_y = geometry.x + geometry.length * np.cos(geometry.hdg), \
-                geometry.y + geometry.length * np.sin(geometry.hdg)
-            if max(np.hypot(start_x - geometry.x, start_y - geometry.y),
-                   np.hypot(end_x - stop_x, end_y - stop_y)) <= POSITION_TOLERANCE:
-                out[-1] = replace(before, length=float(end_s - before.s))
-                continue
-        out.append(geometry)
+    """(geometries with runs of collinear lines merged, how many lines were merged away). A line joins the run
+    before it when its heading is within ``EQUATION_TOLERANCE`` of the previous line's (ASAM's test), it starts
+    within ``POSITION_TOLERANCE`` of where that one ends, and the run stays one line (``_one_line``)."""
+    out, run = [], []
+
+    def close():
+        if run:
+            out.append(_one_line(run) if len(run) > 1 else run[0])
+
+    for geometry in geometries:
+        before = run[-1] if run else None
+        if (before is not None and geometry.kind == GeometryKind.LINE
+                and _heading_difference(geometry.hdg, before.hdg) < EQUATION_TOLERANCE
+                and np.hypot(*np.subtract(_line_end(before), (geometry.x, geometry.y))) <= POSITION_TOLERANCE
+                and _one_line(run + [geometry]) is not None):
+            run.append(geometry)
+            continue
+        close()
+        run = [geometry] if geometry.kind == GeometryKind.LINE else []
+        if not run:
+            out.append(geometry)
+    close()
     return tuple(out), len(geometries) - len(out)
 
 
