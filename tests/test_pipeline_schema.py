@@ -55,7 +55,8 @@ SAMPLE = REPO / "sample_data" / "tavf_synthetic.osm"
      "[check.thresholds] unknown key 'gnss_p99_distance_m' (known: georeference_roundtrip_m, "
      "gnss_median_distance_m, gnss_p95_distance_m, reference_median_offset_m, reference_min_coverage, "
      "reference_p95_offset_m)"),
-    ('[opendrive]\neps = 0.1\n', "[opendrive] unknown key 'eps' (known: repair)"),
+    ('[opendrive]\neps = 0.1\n', "[opendrive] unknown key 'eps' (known: curves, repair)"),
+    ('[opendrive]\ncurves = "splines"\n', "[opendrive] curves must be one of arcs, keep, not 'splines'"),
     ('[opendrive]\nrepair = "no"\n', "[opendrive] repair must be true or false, not 'no'"),
     ('[extract]\nroute = true\n', "[extract] unknown key 'route' (known: routes)"),
     ('[mehs]\neps = 0.1\n',

@@ -332,7 +332,7 @@ def test_no_repair_keeps_netconvert_file_and_a_build_repairs_it(tmp_path):
     _build(str(source), "-o", str(out), "--pipeline", str(pipeline), "-q")
     manifest = json.loads((out / "manifest.json").read_text())
     opendrive = stage(manifest, "opendrive")
-    assert opendrive["options"] == {"repair": True} and "repair" not in opendrive["facts"]
+    assert opendrive["options"] == {"repair": True, "curves": "arcs"} and "repair" not in opendrive["facts"]
     assert opendrive["facts"]["repairs"][GEOMETRY_LENGTH]["count"] > 0
     assert manifest["artifacts"]["xodr"]["stage"] == "opendrive"
     repaired = validate_file(out / "sample.xodr")

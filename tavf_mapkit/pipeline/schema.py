@@ -104,7 +104,7 @@ def _tables() -> dict[str, dict]:
         "area": {"bbox": bbox(), "polygon_path": file_path()},
         "extract": {"routes": boolean()},
         "netconvert": {"profile": profile(), "crs": choice(*CRS_CHOICES)},
-        "opendrive": {"repair": boolean()},
+        "opendrive": {"repair": boolean(), "curves": choice("arcs", "keep")},
         "mesh": {"eps": metres(), "tile": metres(), "format": choice("glb", "obj"), "solids": boolean()},
         "collision": {"eps": metres(), "tile": metres()},
         "check": {"reference_network_path": file_path(), "gnss_trace_path": file_path(),

@@ -27,14 +27,17 @@ from tavf_mapkit.pipeline.stages import Stage, StageOutput, register_stage
 class OpenDriveStage(Stage):
     inputs = ("xodr",)
     # 2: an OpenDRIVE input becomes the build's NAME.xodr; 3: netconvert's output repaired; 4: @length set to the
-    # arc length, [opendrive] repair; 5: connecting roads meet their lanes, one <controller> per id
-    version = "5"
+    # arc length, [opendrive] repair; 5: connecting roads meet their lanes, one <controller> per id; 6: curves as
+    # arcs ([opendrive] curves)
+    version = "6"
     description = "read and check the OpenDRIVE (counts, bounds, georeference plausibility)"
 
     def options(self, context: BuildContext) -> dict:
         if context.input_kind == "opendrive":
             return {"driving_side": context.config.driving_side}
-        return {"repair": repair_enabled(context)}
+        if not repair_enabled(context):
+            return {"repair": False}
+        return {"repair": True, "curves": curves_mode(context)}
 
     def run(self, context: BuildContext) -> StageOutput:
         from tavf_mapkit.opendrive.summary import summarise
@@ -80,6 +83,11 @@ def repair_enabled(context: BuildContext) -> bool:
     return bool(context.section("opendrive").get("repair", True))
 
 
+def curves_mode(context: BuildContext) -> str:
+    """[opendrive] curves: "arcs" (paramPoly3 and poly3 become arcs and lines, the default) or "keep"."""
+    return str(context.section("opendrive").get("curves", "arcs"))
+
+
 def _repair_steps(context: BuildContext) -> list:
     """The repairs of netconvert's OpenDRIVE in the order they run: each takes the map the one before returned
     and returns (map, [Repair]). The first makes a build possible at all and runs even with --no-repair; the
@@ -87,6 +95,7 @@ def _repair_steps(context: BuildContext) -> list:
     from tavf_mapkit.opendrive.repair import repair_untrusted_geometry
     from tavf_mapkit.opendrive.repair_contacts import repair_contacts
     from tavf_mapkit.opendrive.repair_controllers import repair_controllers
+    from tavf_mapkit.opendrive.repair_curves import repair_curves
     from tavf_mapkit.opendrive.repair_lengths import repair_geometry_lengths
     from tavf_mapkit.opendrive.repair_redundant import repair_redundant
 
@@ -99,6 +108,9 @@ def _repair_steps(context: BuildContext) -> list:
             repair_contacts,  # connecting roads meet the lanes they link (or their link goes)
             repair_controllers,  # one <controller> per id
         ]
+        if curves_mode(context) == "arcs":
+            # last, so that the connecting roads rebuilt above are among them
+            steps.append(repair_curves)  # paramPoly3 and poly3 as arcs and lines every reader evaluates exactly
     return steps
 
 

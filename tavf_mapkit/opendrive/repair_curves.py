@@ -1,0 +1,546 @@
+"""Curves as arcs: every paramPoly3 and poly3 becomes a chain of arcs (and lines) that every reader evaluates
+exactly, so that all of them put a lane border at the same place.
+
+Why: a paramPoly3's s is arc length, and its parameter p is not, so a reader must invert the arc length. This
+toolkit does so exactly (opendrive/geometry.py), but libOpenDRIVE (C++) maps s to p through a polyline of the
+curve within 1 cm (CubicBezier: chord lengths, the last one stretched to @length) and CARLA evaluates a
+paramPoly3 as a polyline too: on netconvert's junction curves their lanes lie millimetres to centimetres from
+ours (TAVF build: libOpenDRIVE p99 5.4 mm, up to 4 cm; CARLA p99 4.4 mm), however right the file is. Lines and
+arcs have closed forms that every reader evaluates alike.
+
+The repair replaces each curved geometry by a G1 chain of arcs. Knots are placed along the curve where its
+curvature changes (a chain of arcs is piecewise-constant curvature: on a piece of length h its heading strays
+up to about k' h^2 / 10 from the curve's, which the road's widest lane offset magnifies), and every arc is
+exactly as long as the curve between its knots: s stays the curve's arc length at every knot, the pieces sum
+to the curve's length, and nothing else along the road moves (lane sections, widths, profiles, objects,
+signals keep their s; the road keeps its length). The chain starts at the curve's pose and its heading runs
+linearly through each piece, through the curve's heading at the knots shifted so that the error changes sign
+on every piece (else it would add up to a drift of position); the smallest change of the inner knot headings
+then puts the chain's end on the curve's end (to JOINT, heading exactly). Each arc is checked against the exact
+curve at nine points and its start, at the same s: its border deviation -- position error plus widest lane
+offset times heading error -- must stay within the tolerance, or the piece is split (by the square root of
+its excess) and the curve fitted again. Pieces that turn so little that a line does as well are made lines
+(CARLA evaluates an arc through its centre in single precision: a 10 km radius costs it a millimetre); a curve
+that a single line follows within the tolerance becomes one <line>.
+
+TOLERANCE is 1 mm, the measure of the @length repair ("lane borders stay where they were"): on DLR's TAVF
+build it makes 1,399 curves 36,700 arcs (+8 MB of XML, 3 s); 0.1 mm would take 106,000 arcs and keep twelve
+curves that need more than MAX_PIECES. Either way both oracles then read the file as we do (they evaluate the
+same arcs); the tolerance only bounds how far the lanes moved from netconvert's curves.
+
+A curve that would need more than MAX_PIECES arcs, or whose arcs cannot be fitted (a cusp, an @length longer
+than the curve), is kept as it is, and a Repair record says so. A road whose geometries are not in s order is
+left alone (structure.s-order). A map without paramPoly3 and poly3 is returned unchanged: repairing a repaired
+map changes nothing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from tavf_mapkit.opendrive.geometry import ELEMENT_NAMES, Geometry, GeometryKind
+from tavf_mapkit.opendrive.refline import ReferenceLine
+from tavf_mapkit.opendrive.repair import Repair
+from tavf_mapkit.opendrive.repair_redundant import redundant_lines, repair_redundant
+
+#: Repair.action of this repair: a curve replaced, and one kept (with why)
+CURVE_AS_ARCS = "curve as arcs"
+KEPT_CURVE = "curve kept"
+
+#: how far a lane border may move (m): position error + widest lane offset x heading error, at the same s
+TOLERANCE = 1e-3
+#: a piece ends this close (m) to where the next one begins
+JOINT = 1e-8
+#: most arcs one curve may become; a curve that needs more is kept (and noted)
+MAX_PIECES = 512
+#: a curvature whose arc stays this close (m, rad) to its tangent line over its length is written as a line
+STRAIGHT = 1e-10
+
+#: pieces must fit to this share of the tolerance at the checked points (the deviation is smooth between them)
+_MARGIN = 0.9
+
+CURVED = (int(GeometryKind.PARAM_POLY3), int(GeometryKind.POLY3))
+
+
+def repair_curves(odr, tolerance: float = TOLERANCE, max_pieces: int = MAX_PIECES):
+    """(map with its paramPoly3 and poly3 as arcs and lines, repairs): one Repair per road whose curves became
+    arcs, one per curve kept (and why)."""
+    from tavf_mapkit.opendrive.network import OpenDriveMap
+
+    table = odr.arrays.geometries
+    if not len(table):
+        return odr, []
+    curved = np.isin(table.kind, CURVED) & (table.length > 0)
+    if not curved.any():
+        return odr, []
+    starts = np.searchsorted(table.group, np.arange(len(odr.roads)), side="left")
+    ends = np.searchsorted(table.group, np.arange(len(odr.roads)), side="right")
+    ordered = np.ones(len(odr.roads), dtype=bool)
+    if len(table) > 1:
+        same = table.group[1:] == table.group[:-1]
+        ordered[table.group[1:][same & (np.diff(table.s) < 0)]] = False
+    rows = np.flatnonzero(curved & ordered[table.group])
+    if not len(rows):
+        return odr, []
+    # the part of each curve the road uses: up to the next geometry's start (a shadowed tail is never read)
+    next_row = np.minimum(rows + 1, len(table) - 1)
+    following = np.where(rows + 1 < ends[table.group[rows]], table.s[next_row], np.inf)
+    used = np.minimum(table.length[rows], following - table.s[rows])
+    lever = _widest_offsets(odr, np.unique(table.group[rows]))
+    widest = np.array([lever.get(int(g), 0.0) for g in table.group[rows]])
+    fits = fit_curves(table, rows, used, widest, tolerance, max_pieces)
+
+    roads, repairs = list(odr.roads), []
+    by_road: dict = {}
+    for k, row in enumerate(rows.tolist()):
+        by_road.setdefault(int(table.group[row]), {})[row - int(starts[table.group[row]])] = fits[k]
+    for index, fit_of in by_road.items():
+        road = roads[index]
+        geometries, replaced = [], []
+        for i, geometry in enumerate(road.reference_line.geometries):
+            fit = fit_of.get(i)
+            if isinstance(fit, ArcChain):
+                geometries += _pieces(geometry, fit)
+                replaced.append(geometry)
+                continue
+            geometries.append(geometry)
+            if fit is not None:
+                repairs.append(Repair(KEPT_CURVE, road.id, geometry.line,
+                                      f"{ELEMENT_NAMES[geometry.kind]} at s={geometry.s:.6g} kept: {fit}"))
+        if not replaced:
+            continue
+        roads[index] = replace(road, reference_line=ReferenceLine(tuple(geometries)))
+        arcs = sum(g.kind is GeometryKind.ARC for g in geometries)
+        lines = sum(g.kind is GeometryKind.LINE for g in geometries) - sum(
+            g.kind is GeometryKind.LINE for g in road.reference_line.geometries)
+        names = " and ".join(sorted({ELEMENT_NAMES[g.kind] for g in replaced}))
+        repairs.append(Repair(CURVE_AS_ARCS, road.id, replaced[0].line,
+                              f"{len(replaced)} {names} as {arcs} arcs and {lines:+d} lines "
+                              f"(lane borders within {tolerance * 1000:g} mm of the curve's)"))
+    if not any(r.action == CURVE_AS_ARCS for r in repairs):
+        return odr, repairs
+    repaired = OpenDriveMap(odr.header, tuple(roads), odr.junctions, odr.controllers, odr.source, odr.warnings,
+                            odr.extra_xml)
+    if any(redundant_lines(roads[index].reference_line.geometries) for index in by_road):
+        # a curve that became a line beside a line of its heading is one line with it (ASAM: redundant lines)
+        repaired, merged = repair_redundant(repaired)
+        repairs += merged
+    return repaired, repairs
+
+
+def _widest_offsets(odr, road_indices: np.ndarray, step: float = 1.0) -> dict:
+    """Road index -> the largest |t| of any lane border of the road (sampled every ``step`` m and at section
+    ends): how far from the reference line a heading error is felt."""
+    from tavf_mapkit.opendrive.sampling import sample_lanes_at, section_samples
+
+    arrays = odr.arrays
+    sections = np.flatnonzero(np.isin(arrays.section_road, road_indices))
+    if not len(sections):
+        return {}
+    sampling = sample_lanes_at(odr, *section_samples(arrays, step, True, sections))
+    widest = np.zeros(len(odr.roads))
+    np.maximum.at(widest, arrays.section_road[sampling.sample_section], np.abs(sampling.lane_offset))
+    if len(sampling.pair_lane):
+        np.maximum.at(widest, sampling.road_index, np.abs(sampling.t_outer))
+    return {int(r): float(widest[r]) for r in road_indices}
+
+
+@dataclass(frozen=True)
+class ArcChain:
+    """The pieces one curve became, in its own s (from 0): start offset, pose and curvature of each."""
+
+    ds: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    hdg: np.ndarray
+    curvature: np.ndarray
+    length: np.ndarray
+
+
+def _pieces(geometry, chain: ArcChain) -> list:
+    """The <geometry> records of a chain, at the curve's s."""
+    pieces = []
+    for ds, x, y, hdg, k, length in zip(chain.ds.tolist(), chain.x.tolist(), chain.y.tolist(),
+                                        chain.hdg.tolist(), chain.curvature.tolist(), chain.length.tolist()):
+        straight = abs(k) * length <= STRAIGHT and 0.5 * abs(k) * length * length <= STRAIGHT
+        pieces.append(Geometry(
+            geometry.s + ds, x, y, hdg, length, GeometryKind.LINE if straight else GeometryKind.ARC,
+            () if straight else (k,), geometry.line, geometry.extra_xml if not pieces else ()))
+    return pieces
+
+
+def _wrap(angle):
+    return (angle + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def _chord(a, b):
+    """Displacement per unit length of an arc whose heading turns from a to b: e^{i(a+b)/2} sinc((b-a)/2),
+    exact as the turn goes to 0."""
+    return np.exp(0.5j * (a + b)) * np.sinc((b - a) / (2.0 * np.pi))
+
+
+_GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(16)
+_GL4_NODES, _GL4_HALF_WEIGHTS = np.polynomial.legendre.leggauss(4)
+_GL4, _GL4_WEIGHTS = 0.5 * (_GL4_NODES + 1.0), 0.5 * _GL4_HALF_WEIGHTS  # on [0, 1]
+#: panels of each curve's arc-length table (16-point Gauss-Legendre each: exact to double precision)
+_GRID = 64
+
+
+@dataclass(frozen=True, eq=False)
+class Curves:
+    """Cubic curves (u(p), v(p)) in their geometries' frames, over p in [0, p_end], with arc-length tables.
+
+    The fit works in p, where a paramPoly3 or poly3 is a polynomial: arc length is integrated forward from
+    the table (s(p) = table + one Gauss-Legendre panel), never inverted, which is what makes evaluating a
+    paramPoly3 at s expensive."""
+
+    u: np.ndarray  # (n, 4): a, b, c, d
+    v: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    hdg: np.ndarray
+    p_end: np.ndarray
+    table: np.ndarray  # (n, _GRID + 1): arc length at p_end * k / _GRID
+
+    @staticmethod
+    def of(table, rows: np.ndarray, used: np.ndarray) -> tuple["Curves", np.ndarray]:
+        """The used part of each curve, and per curve whether it is shorter than its used length (a reader
+        would stand still at its end: no chain of arcs does that)."""
+        params = table.params[rows]
+        poly3 = table.kind[rows] == int(GeometryKind.POLY3)
+        unit = np.tile([0.0, 1.0, 0.0, 0.0], (len(rows), 1))
+        u = np.where(poly3[:, None], unit, params[:, 0:4])
+        v = np.where(poly3[:, None], params[:, 0:4], params[:, 4:8])
+        p_max = np.where(~poly3 & (params[:, 8] > 0.5), 1.0, table.length[rows])
+        whole = Curves(u, v, table.x[rows], table.y[rows], table.hdg[rows], p_max, np.zeros((len(rows), 1)))
+        whole = whole._with_table()
+        total = whole.table[:, -1]
+        short = used > total + JOINT
+        p_end = np.where(used < total, whole.p_at(np.arange(len(rows)), np.minimum(used, total)), p_max)
+        return replace(whole, p_end=p_end)._with_table(), short
+
+    def _with_table(self) -> "Curves":
+        n = len(self.p_end)
+        edges = self.p_end[:, None] * np.linspace(0.0, 1.0, _GRID + 1)[None, :]
+        half = 0.5 * np.diff(edges, axis=1)
+        nodes = edges[:, :-1, None] + half[:, :, None] * (_GL_NODES + 1.0)
+        panels = (self.speed(np.arange(n)[:, None, None], nodes) * _GL_WEIGHTS).sum(axis=2) * half
+        return replace(self, table=np.concatenate([np.zeros((n, 1)), np.cumsum(panels, axis=1)], axis=1))
+
+    def tangent(self, c, p):
+        """(du/dp, dv/dp) at p."""
+        u, v = self.u[c], self.v[c]
+        return (u[..., 1] + p * (2 * u[..., 2] + 3 * u[..., 3] * p),
+                v[..., 1] + p * (2 * v[..., 2] + 3 * v[..., 3] * p))
+
+    def derivatives(self, c, p):
+        """First, second and third derivatives of u and v by p: (du, dv, ddu, ddv, dddu, dddv)."""
+        u, v = self.u[c], self.v[c]
+        return (*self.tangent(c, p), 2 * u[..., 2] + 6 * u[..., 3] * p, 2 * v[..., 2] + 6 * v[..., 3] * p,
+                6 * u[..., 3], 6 * v[..., 3])
+
+    def speed(self, c, p):
+        return np.hypot(*self.tangent(c, p))
+
+    def pose(self, c, p):
+        """(x, y, heading) of curve c at p, in the map's frame."""
+        u, v = self.u[c], self.v[c]
+        lu = u[..., 0] + p * (u[..., 1] + p * (u[..., 2] + p * u[..., 3]))
+        lv = v[..., 0] + p * (v[..., 1] + p * (v[..., 2] + p * v[..., 3]))
+        du, dv = self.tangent(c, p)
+        cos, sin = np.cos(self.hdg[c]), np.sin(self.hdg[c])
+        return (self.x[c] + cos * lu - sin * lv, self.y[c] + sin * lu + cos * lv,
+                self.hdg[c] + np.arctan2(dv, du))
+
+    def curvature_rate(self, c, p):
+        """(curvature, its derivative along s) at p."""
+        du, dv, ddu, ddv, dddu, dddv = self.derivatives(c, p)
+        square = du * du + dv * dv
+        cross = du * ddv - dv * ddu
+        with np.errstate(all="ignore"):
+            curvature = cross / square ** 1.5
+            rate = ((du * dddv - dv * dddu) / square ** 1.5
+                    - 3.0 * cross * (du * ddu + dv * ddv) / square ** 2.5) / np.sqrt(square)
+        return curvature, rate
+
+    def arc_length(self, c, p):
+        """s at p: the table up to p's panel, one Gauss-Legendre panel from there."""
+        k = np.clip(np.floor(p / self.p_end[c] * _GRID), 0, _GRID - 1).astype(np.int64)
+        start = self.p_end[c] * k / _GRID
+        half = 0.5 * (p - start)
+        nodes = start[..., None] + half[..., None] * (_GL_NODES + 1.0)
+        return self.table[c, k] + (self.speed(c[..., None], nodes) * _GL_WEIGHTS).sum(axis=-1) * half
+
+    def arc_length_along(self, c, pa, pb, fractions):
+        """Arc length from p_a to p_a + (p_b - p_a) f for increasing fractions f, per row of (c, p_a, p_b):
+        4-point Gauss-Legendre between consecutive fractions (a piece is short, its speed smooth)."""
+        edges = np.r_[0.0, fractions]
+        width = np.diff(edges)
+        x = edges[:-1, None] + width[:, None] * _GL4[None, :]
+        p = pa[:, None, None] + (pb - pa)[:, None, None] * x[None, :, :]
+        gaps = (self.speed(c[:, None, None], p) * (width[:, None] * _GL4_WEIGHTS)).sum(axis=2)
+        return np.cumsum(gaps, axis=1) * (pb - pa)[:, None]
+
+    def p_at(self, c, s):
+        """p where the arc length is s (Newton from the table)."""
+        k = np.clip((self.table[c, 1:] <= s[:, None]).sum(axis=1), 0, _GRID - 1)
+        p0 = self.p_end[c] * k / _GRID
+        p1 = self.p_end[c] * (k + 1) / _GRID
+        a0, a1 = self.table[c, k], self.table[c, k + 1]
+        p = p0 + np.divide(s - a0, a1 - a0, out=np.zeros_like(s), where=a1 > a0) * (p1 - p0)
+        for _ in range(6):
+            p = p - (self.arc_length(c, p) - s) / np.maximum(self.speed(c, p), 1e-12)
+        return p
+
+
+def fit_curves(table, rows: np.ndarray, used: np.ndarray, lever: np.ndarray, tolerance: float,
+               max_pieces: int = MAX_PIECES) -> list:
+    """Per curve (``rows`` of a GeometryTable, over its first ``used`` metres; ``lever``: the road's widest
+    lane offset), an ArcChain whose lane borders lie within ``tolerance`` of the curve's, or why there is none.
+
+    All curves at once: pieces are flat arrays (curve, p_a, p_b) in curve and s order; each round fits every
+    unfinished curve, accepts those whose pieces all fit, and splits the pieces that do not."""
+    n = len(rows)
+    outcome: list = [None] * n
+    budget = tolerance * _MARGIN
+    curves, short = Curves.of(table, rows, used)
+    for k in np.flatnonzero(short).tolist():
+        outcome[k] = (f"@length {table.length[rows[k]]:.9g} m is longer than the curve "
+                      f"({curves.table[k, -1]:.9g} m)")
+    straight = _straight(curves, lever, budget) & ~short
+    for k in np.flatnonzero(straight).tolist():
+        x, y, hdg = curves.pose(np.array([k]), np.zeros(1))
+        outcome[k] = ArcChain(np.zeros(1), x, y, hdg, np.zeros(1), used[k:k + 1].copy())
+    todo = np.flatnonzero(~straight & ~short)
+    curve, pa, pb = _initial_pieces(curves, todo, lever[todo], budget, max_pieces)
+    why = f"more than {max_pieces} arcs would be needed to stay within {tolerance * 1000:g} mm"
+    for _ in range(_MAX_ROUNDS):
+        count = np.bincount(curve, minlength=n)
+        over = count > max_pieces
+        for k in np.flatnonzero(over).tolist():
+            outcome[k] = why
+        keep = ~over[curve]
+        curve, pa, pb = curve[keep], pa[keep], pb[keep]
+        if not len(curve):
+            break
+        chain, deviation, closed = _arc_chains(curves, curve, pa, pb, used, lever, budget)
+        fits = closed & (np.bincount(curve, weights=deviation > budget, minlength=n) == 0)
+        done = fits[curve]
+        bounds = np.flatnonzero(np.r_[True, curve[1:] != curve[:-1], True])
+        for lo, hi in zip(bounds[:-1].tolist(), bounds[1:].tolist()):
+            if done[lo]:
+                outcome[int(curve[lo])] = ArcChain(*(value[lo:hi] for value in chain))
+        # what does not fit is split: a piece by the square root of its excess (its heading error grows with
+        # the square of its length), every piece of a curve that fits but does not close in two
+        ratio = np.nan_to_num(deviation / budget, nan=4.0, posinf=4.0)
+        parts = np.where(ratio > 1.0, np.clip(np.ceil(np.sqrt(ratio) * 1.1), 2, 8), 1).astype(np.int64)
+        parts = np.where(~closed[curve] & (parts == 1), 2, parts)
+        curve, pa, pb, parts = curve[~done], pa[~done], pb[~done], parts[~done]
+        step = np.repeat((pb - pa) / parts, parts)
+        k = np.arange(parts.sum()) - np.repeat(np.cumsum(parts) - parts, parts)
+        start = np.repeat(pa, parts) + k * step
+        end = np.where(k == np.repeat(parts, parts) - 1, np.repeat(pb, parts), start + step)
+        curve, pa, pb = np.repeat(curve, parts), start, end
+    for k in np.unique(curve).tolist():
+        if outcome[k] is None:
+            outcome[k] = f"its arcs do not fit within {tolerance * 1000:g} mm after {_MAX_ROUNDS} refinements"
+    return outcome
+
+
+def _s_of(curves, curve, p, used):
+    """s at p, exactly 0 at the start and ``used`` at the end (so that the pieces sum to the used length)."""
+    s = curves.arc_length(curve, p)
+    s = np.where(p <= 0.0, 0.0, s)
+    return np.where(p >= curves.p_end[curve], used[curve], s)
+
+
+def _straight(curves, lever, budget) -> np.ndarray:
+    """Which curves a single line from their start (over their used length) follows within ``budget``."""
+    n = len(curves.p_end)
+    c = np.arange(n)[:, None]
+    p = curves.p_end[:, None] * np.linspace(0.0, 1.0, _GRID + 1)[None, :]
+    x, y, hdg = curves.pose(c, p)
+    s = curves.table
+    line_x = x[:, :1] + s * np.cos(hdg[:, :1])
+    line_y = y[:, :1] + s * np.sin(hdg[:, :1])
+    deviation = np.hypot(x - line_x, y - line_y) + lever[:, None] * np.abs(_wrap(hdg - hdg[:, :1]))
+    return deviation.max(axis=1) <= budget
+
+
+def _initial_pieces(curves, todo, lever, budget, max_pieces: int):
+    """(curve, p_a, p_b) of a first split of each curve: as many pieces as its curvature's rate asks for (a
+    chain of arcs over a curvature that changes at rate k' turns up to ~k' h^2 / _HEADING_SPREAD away from
+    the curve on pieces of length h, which the widest lane magnifies), spread where the rate is, and at most
+    _MAX_TURN of turn each."""
+    if not len(todo):
+        empty = np.zeros(0)
+        return np.zeros(0, dtype=np.int64), empty, empty
+    grid = np.linspace(0.0, 1.0, _GRID + 1)
+    p = curves.p_end[todo, None] * grid[None, :]
+    c = todo[:, None]
+    curvature, rate = curves.curvature_rate(c, p)
+    curvature, rate = np.nan_to_num(curvature), np.nan_to_num(rate)
+    density = np.maximum(np.sqrt(np.abs(rate) * np.maximum(lever, 1e-3)[:, None] / (_HEADING_SPREAD * budget)),
+                         np.abs(curvature) / _MAX_TURN)
+    ds = np.diff(curves.table[todo], axis=1)
+    steps = 0.5 * (density[:, 1:] + density[:, :-1]) * ds
+    cumulative = np.concatenate([np.zeros((len(todo), 1)), np.cumsum(steps, axis=1)], axis=1)
+    parts = np.minimum(np.maximum(1, np.ceil(cumulative[:, -1])), max_pieces + 1).astype(np.int64)
+    owner = np.repeat(np.arange(len(todo)), parts + 1)
+    k = np.arange(len(owner)) - np.repeat(np.cumsum(parts + 1) - (parts + 1), parts + 1)
+    target = cumulative[owner, -1] * k / np.repeat(parts, parts + 1)
+    # p where the cumulative count reaches each target, linear inside its grid cell
+    cell = np.clip((cumulative[owner, 1:] <= target[:, None]).sum(axis=1), 0, _GRID - 1)
+    low, high = cumulative[owner, cell], cumulative[owner, cell + 1]
+    fraction = np.divide(target - low, high - low, out=np.zeros_like(target), where=high > low)
+    fraction = np.clip(fraction, 0.0, 1.0)
+    knots = p[owner, cell] + fraction * (p[owner, cell + 1] - p[owner, cell])
+    knots[k == 0] = 0.0
+    last = k == np.repeat(parts, parts + 1)
+    knots[last] = p[owner[last], -1]
+    start = np.flatnonzero(~last)
+    return todo[owner[start]], knots[start], knots[start + 1]
+
+
+def _grouped_cumsum(values: np.ndarray, first: np.ndarray) -> np.ndarray:
+    """Cumulative sums restarting at every ``first`` element (inclusive)."""
+    total = np.cumsum(values)
+    starts = np.flatnonzero(first)
+    before = total[starts] - values[starts]
+    return total - np.repeat(before, np.diff(np.r_[starts, len(values)]))
+
+
+def _arc_chains(curves, curve, pa, pb, used, lever, budget):
+    """One arc per piece [p_a, p_b] (a flat array in curve and s order), chained G1 from each curve's start
+    pose: ((s, x, y, heading, curvature, length) per piece, largest border deviation per piece, per curve
+    whether the chain ends where the curve does, within JOINT).
+
+    Each arc is exactly as long as the curve between its knots, so s is the curve's arc length at every joint
+    and the pieces sum to the curve's length. The chain's heading is linear in s on each piece, through the
+    curve's heading at the knots shifted by the mean of its error on the pieces on either side: the heading of
+    a chord through a curving heading lies to one side of it on every piece, which would add up to a drift of
+    the position; shifted, the error changes sign on each piece, so the position stays on the curve (and the
+    largest heading error is k' h^2 / 12 instead of / 8). What little is left at the end is closed by the
+    smallest change of the knot headings that moves the chain's end onto the curve's end."""
+    first = np.r_[True, curve[1:] != curve[:-1]]
+    last = np.r_[curve[1:] != curve[:-1], True]
+    sa, sb = _s_of(curves, curve, pa, used), _s_of(curves, curve, pb, used)
+    h = sb - sa
+    xa, ya, raw_a = curves.pose(curve, pa)
+    xb, yb, raw_b = curves.pose(curve, pb)
+    # the curve's heading, unwrapped along each curve (a piece turns less than _MAX_TURN)
+    turn = _wrap(raw_b - raw_a)
+    start_heading = np.repeat(raw_a[first], np.diff(np.r_[np.flatnonzero(first), len(curve)]))
+    heading_b = start_heading + _grouped_cumsum(turn, first)
+    heading_a = heading_b - turn
+    # the curve at Gauss-Legendre nodes of each piece (s-weights for the mean error, and the check points)
+    pn = pa[:, None] + (pb - pa)[:, None] * _NODES[None, :]
+    cn = curve[:, None]  # broadcast, not repeated: gathering coefficients per node is what costs
+    un = curves.arc_length_along(curve, pa, pb, _NODES)
+    xn, yn, raw_n = curves.pose(cn, pn)
+    heading_n = heading_a[:, None] + _wrap(raw_n - raw_a[:, None])
+    weight = _WEIGHTS[None, :] * curves.speed(cn, pn) * (pb - pa)[:, None]
+    with np.errstate(all="ignore"):
+        chord_heading = heading_a[:, None] + un / h[:, None] * turn[:, None]
+        mean_error = np.nan_to_num((weight * (chord_heading - heading_n)).sum(axis=1) / h)
+    shift = np.where(first, 0.0, -0.5 * (np.r_[0.0, mean_error[:-1]] + mean_error))
+    knot = heading_a + shift  # the chain's heading at each piece's start; at a curve's end the curve's
+    end_heading = heading_b[last]
+    weight = (lever[curve] + h) / budget
+    frozen = np.zeros(len(knot), dtype=bool)
+    origin = xa[first] + 1j * ya[first]
+    target = xb[last] + 1j * yb[last]
+    span = np.r_[0.0, h[:-1]] + h  # a knot's share of the chain: half of each piece it joins
+    n_curves = len(curves.p_end)
+    owner = np.cumsum(first) - 1  # each piece's curve, numbered among the curves here
+    counts = np.diff(np.r_[np.flatnonzero(first), len(curve)])
+    # the end moves by i e^{i heading} (half the pieces beside it) per radian of an inner knot's heading
+    for closing in range(_CLOSURE_STEPS + 1):
+        if closing in _STRAIGHTEN_AT:  # once before closing, once after (closing makes more pieces flat)
+            knot, straight = _straightened(knot, end_heading, first, last, weight)
+            frozen |= straight
+        knot_b = np.r_[knot[1:], 0.0]
+        knot_b[last] = end_heading
+        step = h * _chord(knot, knot_b)
+        start = np.repeat(origin, counts) + _grouped_cumsum(step, first) - step
+        miss = (start + step)[last] - target
+        if closing == _CLOSURE_STEPS:
+            break
+        jx = np.where(first | frozen, 0.0, -np.sin(knot) * 0.5 * span)
+        jy = np.where(first | frozen, 0.0, np.cos(knot) * 0.5 * span)
+        m11, m12, m22 = (np.bincount(owner, weights, len(counts)) for weights in (jx * jx, jx * jy, jy * jy))
+        regular = 1e-12 * (m11 + m22)  # a straight chain cannot move its end along itself
+        det = (m11 + regular) * (m22 + regular) - m12 * m12
+        det = np.where(det > 0.0, det, np.inf)  # a single arc: no inner knot to turn
+        lx = -((m22 + regular) * miss.real - m12 * miss.imag) / det
+        ly = -((m11 + regular) * miss.imag - m12 * miss.real) / det
+        knot = knot + jx * lx[owner] + jy * ly[owner]
+    closed = np.zeros(n_curves, dtype=bool)
+    closed[curve[last]] = np.abs(miss) <= JOINT
+    with np.errstate(all="ignore"):
+        curvature = (knot_b - knot) / h
+    # the chain at the nodes and at each piece's start, against the curve at the same s
+    chain_heading = knot[:, None] + curvature[:, None] * un
+    chain = start[:, None] + un * _chord(knot[:, None], chain_heading)
+    inside = np.abs(chain - (xn + 1j * yn)) + lever[curve][:, None] * np.abs(chain_heading - heading_n)
+    deviation = np.maximum(
+        inside.max(axis=1),
+        np.abs(start - (xa + 1j * ya)) + lever[curve] * np.abs(knot - heading_a))
+    deviation = np.where(np.isfinite(curvature), deviation, np.inf)
+    return (sa, start.real, start.imag, _wrap(knot), curvature, h), deviation, closed
+
+
+def _straightened(knot, end_heading, first, last, weight):
+    """Knot headings with every run of pieces that turn so little that a line would do (``weight``: border
+    deviation per radian of heading error, over the budget) made straight, and which knots that froze.
+
+    CARLA evaluates an arc through its centre in single precision: radius * cos(heading) rounded to a float,
+    so an arc of 10 km radius is a millimetre off there, one of 500 km (the piece at a curve's inflection) a
+    few centimetres. A line is exact in every reader. The run's pieces share one heading -- the curve's at its
+    start or end when the run reaches it, else the mean of the run's knots -- and so do the knots on either
+    side, which keeps the chain G1; the closure leaves them alone."""
+    knot_b = np.r_[knot[1:], 0.0]
+    knot_b[last] = end_heading
+    flat = np.abs(knot_b - knot) * weight <= _FLAT_SHARE
+    frozen = np.zeros(len(knot), dtype=bool)
+    if not flat.any():
+        return knot, frozen
+    run = np.cumsum(flat & (first | ~np.r_[False, flat[:-1]])) - 1
+    pieces = np.flatnonzero(flat)
+    runs = run[pieces]
+    n_runs = int(runs.max()) + 1
+    run_first = np.full(n_runs, len(knot))
+    run_last = np.full(n_runs, -1)
+    np.minimum.at(run_first, runs, pieces)
+    np.maximum.at(run_last, runs, pieces)
+    at_start, at_end = first[run_first], last[run_last]
+    after = knot_b[run_last]  # the knot after the run: the next piece's start, or the curve's end
+    mean = (np.bincount(runs, knot[pieces], n_runs) + after) / (np.bincount(runs, minlength=n_runs) + 1.0)
+    heading = np.where(at_start, knot[run_first], np.where(at_end, after, mean))
+    usable = ~(at_start & at_end)  # a run over the whole curve: the curve is no line, or it would be one
+    mine = pieces[usable[runs]]
+    knot = knot.copy()
+    knot[mine] = heading[run[mine]]
+    following = run_last[usable & ~at_end] + 1
+    knot[following] = heading[usable & ~at_end]
+    frozen[mine] = True
+    frozen[following] = True
+    return knot, frozen
+
+
+_GL9, _GL9_WEIGHTS = np.polynomial.legendre.leggauss(9)
+#: Gauss-Legendre nodes on [0, 1] (an odd count: the middle of a piece, where its heading error peaks, is one)
+_NODES = 0.5 * (_GL9 + 1.0)
+_WEIGHTS = 0.5 * _GL9_WEIGHTS
+#: a piece turns at most this much (rad), so that headings unwrap along a curve
+_MAX_TURN = 1.0
+#: a piece whose turn moves the widest lane border by less than this share of the budget is made a line
+_FLAT_SHARE = 0.25
+#: the chain's largest heading error on a piece of length h over a curvature changing at rate k'
+_HEADING_SPREAD = 10.0
+#: rounds of fitting and splitting before a curve is given up
+_MAX_ROUNDS = 12
+_CLOSURE_STEPS = 4
+_STRAIGHTEN_AT = (0, 2)

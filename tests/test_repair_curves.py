@@ -1,0 +1,148 @@
+"""paramPoly3 and poly3 as arcs and lines (opendrive/repair_curves.py), on a real file: netconvert's curves of
+the sample OSM map, built with ``[opendrive] curves = "keep"``, then repaired here.
+
+The repair's promise: every lane border stays within the tolerance of where the exact curve put it at the same
+s, the pieces join G1 and sum to the curve's length (nothing else along s moves), no paramPoly3 is left, and
+repairing the repaired file changes nothing.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from tavf_mapkit.opendrive import load_opendrive
+from tavf_mapkit.opendrive.geometry import GeometryKind
+from tavf_mapkit.opendrive.repair_curves import CURVE_AS_ARCS, KEPT_CURVE, TOLERANCE, repair_curves
+from tavf_mapkit.opendrive.repair_redundant import MERGED_RECORDS
+from tavf_mapkit.opendrive.sampling import sample_lanes
+from tavf_mapkit.opendrive.writer import to_xml, write_opendrive
+
+SAMPLE = Path(__file__).resolve().parents[1] / "sample_data" / "tavf_synthetic.osm"
+UP_TO_OPENDRIVE = '[pipeline]\nstages = ["extract", "netconvert", "opendrive"]\n'
+CURVED = (GeometryKind.PARAM_POLY3, GeometryKind.POLY3)
+
+
+def _build(*args):
+    from tavf_mapkit.cli.main import cli
+
+    return CliRunner().invoke(cli, ["build", *args], catch_exceptions=False)
+
+
+@pytest.fixture(scope="module")
+def kept_build(tmp_path_factory) -> Path:
+    """The sample map built up to the opendrive stage, every other repair made, its curves kept."""
+    folder = tmp_path_factory.mktemp("curves")
+    pipeline = folder / "keep.toml"
+    pipeline.write_text(UP_TO_OPENDRIVE + '[opendrive]\ncurves = "keep"\n')
+    result = _build(str(SAMPLE), "-o", str(folder / "sample"), "--pipeline", str(pipeline), "-q")
+    assert result.exit_code == 0, result.output
+    return folder / "sample"
+
+
+@pytest.fixture(scope="module")
+def curves(kept_build):
+    """(map with netconvert's curves, the same map repaired, repairs)."""
+    odr = load_opendrive(kept_build / "sample.xodr")
+    repaired, repairs = repair_curves(odr)
+    return odr, repaired, repairs
+
+
+def _kinds(odr) -> set:
+    return {GeometryKind(int(k)) for k in np.unique(odr.arrays.geometries.kind)}
+
+
+def test_the_file_has_curves_and_the_repair_leaves_none(curves):
+    odr, repaired, repairs = curves
+    curved = sum(g.kind in CURVED for road in odr.roads for g in road.reference_line.geometries)
+    assert curved > 50  # netconvert's junction curves
+    assert _kinds(repaired) <= {GeometryKind.LINE, GeometryKind.ARC}
+    # a curve that became a line beside a line of its heading is merged with it (opendrive/repair_redundant.py)
+    assert {r.action for r in repairs} <= {CURVE_AS_ARCS, MERGED_RECORDS}
+    changed = {road.id for road in odr.roads if any(g.kind in CURVED for g in road.reference_line.geometries)}
+    assert {r.road for r in repairs if r.action == CURVE_AS_ARCS} == changed
+
+
+def test_every_lane_border_stays_within_the_tolerance(curves):
+    """Both borders of every lane every 5 cm (and at section ends), at the same s, 3D: within TOLERANCE (the fit
+    is checked at 16 points per biarc; this samples densely, independently of those points)."""
+    odr, repaired, _ = curves
+    before, after = sample_lanes(odr, 0.05), sample_lanes(repaired, 0.05)
+    assert np.array_equal(before.s, after.s) and np.array_equal(before.lane_id, after.lane_id)
+    for t in ("t_inner", "t_outer"):
+        moved = np.linalg.norm(before.points_at(getattr(before, t)) - after.points_at(getattr(after, t)),
+                               axis=1)
+        assert moved.max() <= TOLERANCE, (t, moved.max())
+    # and the reference line itself (lanes or not), at the same s
+    ref = np.hypot(before.ref_x - after.ref_x, before.ref_y - after.ref_y)
+    assert ref.max() <= TOLERANCE
+
+
+def test_pieces_join_g1_and_keep_s_and_length(curves):
+    """Each piece ends where the next begins (position < 1e-6 m, heading < 1e-6 rad: evaluated by the reader),
+    s runs on without a gap, every road's geometries still sum to its @length, and the s of every record
+    along the road is untouched."""
+    odr, repaired, _ = curves
+    for old, new in zip(odr.roads, repaired.roads):
+        assert new.length == old.length
+        assert new.lane_sections == old.lane_sections and new.elevation is old.elevation
+        geometries = new.reference_line.geometries
+        if geometries == old.reference_line.geometries:
+            continue
+        table = new.reference_line.table
+        s, length = table.s, table.length
+        assert s[0] == old.reference_line.geometries[0].s
+        assert abs(s[-1] + length[-1] - new.length) < 1e-6, new.id
+        # the joints the repair made (netconvert's own keep their 8-decimal rounding): s runs on, G1
+        kept = {g.s for g in old.reference_line.geometries if g.kind not in CURVED}
+        made = np.array([v not in kept for v in s[1:].tolist()])
+        x, y, hdg, _ = table.evaluate(np.arange(len(table) - 1), length[:-1])
+        gap = np.hypot(x - table.x[1:], y - table.y[1:])[made]
+        kink = np.abs(np.angle(np.exp(1j * (hdg - table.hdg[1:]))))[made]
+        assert np.abs(s[1:] - (s[:-1] + length[:-1]))[made].max(initial=0.0) < 1e-9, new.id
+        assert gap.max(initial=0.0) < 1e-6 and kink.max(initial=0.0) < 1e-6, new.id
+        arcs = [g.params[0] for g in geometries if g.kind is GeometryKind.ARC]  # real arcs: finite, not 0
+        assert all(np.isfinite(arcs)) and all(a != 0.0 for a in arcs), new.id
+
+
+def test_repairing_the_repaired_file_changes_nothing(curves, tmp_path):
+    _, repaired, _ = curves
+    assert repair_curves(repaired) == (repaired, [])
+    write_opendrive(repaired, tmp_path / "repaired.xodr")
+    again = load_opendrive(tmp_path / "repaired.xodr")
+    same, repairs = repair_curves(again)
+    assert repairs == [] and same is again
+    assert to_xml(same) == (tmp_path / "repaired.xodr").read_bytes()
+
+
+def test_a_curve_that_needs_too_many_pieces_is_kept_and_named(curves):
+    odr, _, _ = curves
+    repaired, repairs = repair_curves(odr, max_pieces=4)
+    kept = [r for r in repairs if r.action == KEPT_CURVE]
+    assert kept and all("more than 4 arcs would be needed" in r.detail and r.line for r in kept)
+    assert GeometryKind.PARAM_POLY3 in _kinds(repaired)  # those stay as they were
+    assert any(r.action == CURVE_AS_ARCS for r in repairs)  # the gentle ones do not
+
+
+def test_a_build_writes_arcs_by_default_and_keeps_curves_when_told(kept_build, tmp_path):
+    """The pipeline key: default "arcs" (the repair counted in the stage's facts), "keep" leaves netconvert's
+    curves (a wrong value: tests/test_pipeline_schema.py)."""
+    manifest = json.loads((kept_build / "manifest.json").read_text())
+    opendrive = next(stage for stage in manifest["stages"] if stage["name"] == "opendrive")
+    assert opendrive["options"] == {"repair": True, "curves": "keep"}
+    assert CURVE_AS_ARCS not in opendrive["facts"]["repairs"]
+
+    pipeline = tmp_path / "default.toml"
+    pipeline.write_text(UP_TO_OPENDRIVE)
+    out = tmp_path / "sample"
+    assert _build(str(SAMPLE), "-o", str(out), "--pipeline", str(pipeline), "-q").exit_code == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    opendrive = next(stage for stage in manifest["stages"] if stage["name"] == "opendrive")
+    assert opendrive["options"] == {"repair": True, "curves": "arcs"}
+    assert opendrive["facts"]["repairs"][CURVE_AS_ARCS]["count"] > 0
+    assert _kinds(load_opendrive(out / "sample.xodr")) <= {GeometryKind.LINE, GeometryKind.ARC}
+
