@@ -10,6 +10,7 @@ fleet moves the car onto it (``jump``).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -18,18 +19,30 @@ import numpy as np
 from twin.planning.chunks import PathChunk
 
 CURVATURE_SPAN = 2.0  # m either side over which heading change gives the curvature
-JOIN_GAP = 0.25  # m: a chunk starting farther than this from the path's end is joined by a blend
-JOIN_PER_GAP = 4.0  # the blend replaces this many metres of path per metre of gap on each side...
+JOIN_GAP = 0.25  # m: a chunk starting farther than this to the side of the path's end is joined by a blend
+JOIN_PER_GAP = 4.0  # the blend replaces this many metres of path per metre of sideways gap on each side...
 JOIN_MIN, JOIN_MAX = 2.0, 10.0  # ...within these bounds
 KEEP_BEHIND = 16  # points kept behind the vehicle when shifting
 
 
-def join_cut(gap: float) -> float:
-    """Metres of path before a chunk starting ``gap`` metres from the path's end that the blend replaces
-    with a diagonal (0 where they meet)."""
-    if gap <= JOIN_GAP:
+def join_gap(end: np.ndarray, heading: float, start: np.ndarray) -> tuple[float, float]:
+    """(ahead, aside): where a chunk starting at ``start`` lies from a path ending at ``end`` with ``heading``,
+    metres along the heading (negative: behind the end) and across it."""
+    dx, dy = float(start[0] - end[0]), float(start[1] - end[1])
+    c, s = math.cos(heading), math.sin(heading)
+    return c * dx + s * dy, abs(c * dy - s * dx)
+
+
+def join_cut(ahead: float, aside: float) -> float:
+    """Metres of path before a chunk starting ``ahead`` metres beyond the path's end and ``aside`` metres to its
+    side that the blend replaces with a diagonal. None where the chunk goes on in line: sub-metre lanes stepped
+    over leave a gap straight ahead, which a straight joins (a diagonal from metres back would cut the bend
+    before it). A sideways gap (a lane merging into its neighbour, a kink between roads) is crossed like a
+    lane change, over more path the wider it is; a chunk starting behind the end (a connecting lane that
+    begins before its road ends) also takes back the path it overlaps."""
+    if aside <= JOIN_GAP and ahead >= 0.0:
         return 0.0
-    return 2.0 * float(np.clip(JOIN_PER_GAP * gap, JOIN_MIN, JOIN_MAX))
+    return 2.0 * float(np.clip(JOIN_PER_GAP * aside, JOIN_MIN, JOIN_MAX)) + max(-ahead, 0.0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -134,8 +147,14 @@ class PathBuffer:
             if gap < 1e-3:
                 chunk = chunk.slice(1)
             elif gap > JOIN_GAP:
-                chunk = self._blend(i, chunk, gap)
-                n = int(self.count[i])  # the blend shortened the path: the chunk joins where it now ends
+                end = (self.x[i, n - 1], self.y[i, n - 1])
+                before = (self.x[i, n - 2], self.y[i, n - 2]) if n > 1 else end
+                heading = math.atan2(end[1] - before[1], end[0] - before[0]) if n > 1 else \
+                    math.atan2(points[0, 1] - end[1], points[0, 0] - end[0])
+                cut = join_cut(*join_gap(np.array(end), heading, points[0]))
+                if cut > 0.0:
+                    self._blend(i, cut)
+                    n = int(self.count[i])  # the blend shortened the path: the chunk joins where it now ends
             points = chunk.points
         if not len(points):
             return
@@ -157,15 +176,15 @@ class PathBuffer:
         self.count[i] = m
         self._curvature_limit(i, max(n - 8, 0), m)
 
-    def _blend(self, i: int, chunk: PathChunk, gap: float) -> PathChunk:
+    def _blend(self, i: int, cut: float) -> None:
         """Where lane ends do not meet (a lane merging into its neighbour, a kink between roads), drop the last
-        ``join_cut(gap)`` metres of the path not yet reached, so the path crosses over to the chunk's start on a
-        straight diagonal like a lane change, inside the lanes it leaves, instead of jumping sideways."""
+        ``cut`` metres (``join_cut``) of the path not yet reached, so the path crosses over to the next chunk's
+        start on a straight diagonal like a lane change, inside the lanes it leaves, instead of jumping
+        sideways."""
         n = int(self.count[i])
         keep_until = min(int(self.base[i]) + 2, n)
-        cut = int(np.searchsorted(self.s[i, :n], self.s[i, n - 1] - join_cut(gap), side="right"))
-        self.count[i] = max(cut, keep_until, 1)
-        return chunk
+        kept = int(np.searchsorted(self.s[i, :n], self.s[i, n - 1] - cut, side="right"))
+        self.count[i] = max(kept, keep_until, 1)
 
     def _shift(self, i: int) -> None:
         drop = int(max(self.base[i] - KEEP_BEHIND, 0))

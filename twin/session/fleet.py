@@ -108,11 +108,19 @@ class Fleet:
         ground = self.bodies.ground(state.x, state.y, state.yaw, control.projection.z)
         self.bodies.place(state.x, state.y, state.yaw, ground)
         jump = (ground.wheel_z - previous_wheels > CURB_STEP) & ground.wheel_hit
-        curb = np.any(jump, axis=1) & ~self._fresh
+        jump[self._fresh] = False
         self._fresh[:] = False
+        if np.any(jump):
+            # a curb is an edge, not a slope: look along the wheel's travel for the rise within CURB_RUN
+            before = self.bodies.wheel_xy(self.state.x, self.state.y, self.state.yaw)
+            after = self.bodies.wheel_xy(state.x, state.y, state.yaw)
+            for i, wheel in zip(*np.nonzero(jump)):
+                jump[i, wheel] = self.bodies.steepest_rise(before[i, wheel], after[i, wheel],
+                                                           float(previous_wheels[i, wheel])) > CURB_STEP
+        curb = np.any(jump, axis=1)
         hit = curb.copy()
         for i in np.flatnonzero(curb):
-            wheel = int(np.argmax(ground.wheel_z[i] - previous_wheels[i]))
+            wheel = int(np.argmax(np.where(jump[i], ground.wheel_z[i] - previous_wheels[i], -np.inf)))
             body = int(ground.wheel_body[i, wheel])
             self._log(t, int(i), "curb", self.body_names.get(body, f"body {body}"), state,
                       f"wheel {wheel} up {ground.wheel_z[i, wheel] - previous_wheels[i, wheel]:.2f} m")
