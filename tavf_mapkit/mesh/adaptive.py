@@ -1,6 +1,7 @@
 """Adaptive samples in s: as few cross-sections as keep the lane mesh within ``eps`` of the exact surface.
 
-Every lane section starts with its own breakpoints (section ends, planView geometry starts, elevation /
+Every lane section starts with its own breakpoints (section ends, planView geometry starts where the
+reference line may kink -- not where a line or arc continues into the next geometry G1 --, elevation /
 superelevation / laneOffset records, lane width / border / height records), so every kink of the exact
 surface is a sample. Then each segment [a, b] is checked at 1/4, 1/2 and 3/4 of its length for every lane of
 the section at once: on each border the chord against the exact border point at the same s (3D distance),
@@ -19,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tavf_mapkit.opendrive.geometry import GeometryKind
 from tavf_mapkit.opendrive.sampling import sample_lanes_at
 from tavf_mapkit.opendrive.surface import surface_frame
 
@@ -27,6 +29,7 @@ MIN_SEGMENT = 1e-3        # m: below this a failing segment is a discontinuity o
 HEIGHT_STEP = 1e-3        # m: lane height records are steps; a sample this far before keeps the step sharp
 LEFT_LIMIT = 1e-7         # m: s - LEFT_LIMIT evaluates the record / geometry that ends at a breakpoint
 CONTINUOUS = 1e-4         # m: cross-sections closer than this on both sides of a breakpoint are one
+SMOOTH_JOINT = 1e-6       # m, rad: a geometry that starts this close to the end of the one before continues it
 
 
 @dataclass(frozen=True)
@@ -54,6 +57,24 @@ def _road_breaks(arrays, group: np.ndarray, s: np.ndarray):
     return section, s
 
 
+def smooth_geometry_starts(table) -> np.ndarray:
+    """Per row of a GeometryTable: whether the geometry continues the line or arc before it on its road G1 (it
+    starts where that one ends, with its heading, to SMOOTH_JOINT): no kink of the surface there, so no
+    breakpoint. A chain of arcs (opendrive/repair_curves.py: tens of thousands on a city) would otherwise put a
+    cross-section at every joint, however straight the road."""
+    smooth = np.zeros(len(table), dtype=bool)
+    if len(table) < 2:
+        return smooth
+    closed_form = np.isin(table.kind[:-1], (int(GeometryKind.LINE), int(GeometryKind.ARC)))
+    before = np.flatnonzero((table.group[1:] == table.group[:-1]) & closed_form & (table.length[:-1] > 0))
+    x, y, heading, _ = table.evaluate(before, table.length[before])
+    after = before + 1
+    turn = np.abs((heading - table.hdg[after] + np.pi) % (2.0 * np.pi) - np.pi)
+    smooth[after] = ((np.hypot(x - table.x[after], y - table.y[after]) <= SMOOTH_JOINT) & (turn <= SMOOTH_JOINT)
+                     & (np.abs(table.s[before] + table.length[before] - table.s[after]) <= SMOOTH_JOINT))
+    return smooth
+
+
 def initial_breaks(arrays, max_segment: float, only: np.ndarray | None = None):
     """Sorted unique (section, s) breakpoints of every section with positive length (of the ``only`` sections,
     section rows, when given: each section's breakpoints depend on that section alone)."""
@@ -62,7 +83,8 @@ def initial_breaks(arrays, max_segment: float, only: np.ndarray | None = None):
     sections += [np.arange(n), np.arange(n)]
     values += [arrays.section_s0, arrays.section_end]
     g = arrays.geometries
-    for group, s in ((g.group, g.s), (arrays.elevation.group, arrays.elevation.s0),
+    kinks = ~smooth_geometry_starts(g)
+    for group, s in ((g.group[kinks], g.s[kinks]), (arrays.elevation.group, arrays.elevation.s0),
                      (arrays.superelevation.group, arrays.superelevation.s0),
                      (arrays.lane_offset.group, arrays.lane_offset.s0)):
         sec, ss = _road_breaks(arrays, group, s)
