@@ -101,7 +101,7 @@ def _straight_fleet(cid, length=120.0, speed=8.0, solids=frozenset()):
     xs = np.arange(0.0, length, 1.0)
     points = np.column_stack([xs, np.zeros_like(xs), np.zeros_like(xs)])
     buffer.assign(0, iter([PathChunk(points, np.full(len(xs), speed), np.zeros(len(xs), dtype=np.int64))]))
-    planner = LocalPlanner(buffer, PurePursuit(1), MODEL_S, 1)
+    planner = LocalPlanner(buffer, PurePursuit(1), MODEL_S, 1, DT)
     bodies = VehicleBodies(cid, MODEL_S, 1, origin=(0.0, 0.0, 0.0))
     fleet = Fleet(BicycleModel(MODEL_S), bodies, buffer, planner, DT, solids, {b: f"body {b}" for b in solids})
     fleet.place_on_paths()

@@ -32,11 +32,12 @@ FULL_LOCK_SPEED = 5.0  # m/s (18 km/h): below it the steering may go past max_st
 
 
 class LocalPlanner:
-    def __init__(self, buffer: PathBuffer, lateral, params: VehicleParams, count: int,
+    def __init__(self, buffer: PathBuffer, lateral, params: VehicleParams, count: int, dt: float,
                  limits: ActuatorLimits = CARLA_LIMITS, decel: float = 2.0):
         self.buffer = buffer
         self.lateral = lateral
-        self.longitudinal = PidLongitudinal(count)
+        self.dt = dt  # the simulation's step: the speed PID and the steering rate are per second
+        self.longitudinal = PidLongitudinal(count, dt)
         self.params = params
         self.limits = limits
         self.decel = decel
@@ -59,7 +60,7 @@ class LocalPlanner:
         # at junction speed a driver turns the wheel to full lock: CARLA's 0.8 limit (a 5.6 m radius) made the
         # car swing out of 100-125 degree junction turns onto the curb; the full 35 degrees turn it in 4.2 m
         bound = np.where(speed < FULL_LOCK_SPEED, 1.0, self.limits.max_steering)
-        steer = limit_steering(steer, self.previous_steer, self.limits, bound)
+        steer = limit_steering(steer, self.previous_steer, self.limits, self.dt, bound)
         self.previous_steer = steer
         throttle, brake = split_acceleration(self.longitudinal(speed, target_speed), self.limits)
         # hold a stopped car with the full brake, as a driver would at the end of a route

@@ -137,11 +137,11 @@ class Session:
 
         self.world = SimWorld(self.build, self.dt, gui=config.gui)
         n = config.vehicles
-        controllers = {"pid": PidLateral, "pure-pursuit": PurePursuit}
+        controllers = {"pid": lambda: PidLateral(n, self.dt), "pure-pursuit": lambda: PurePursuit(n)}
         if config.controller not in controllers:
             raise InputError(f"unknown controller {config.controller!r} (choose pid or pure-pursuit)")
         buffer = PathBuffer(n)
-        planner = LocalPlanner(buffer, controllers[config.controller](n), MODEL_S, n)
+        planner = LocalPlanner(buffer, controllers[config.controller](), MODEL_S, n, self.dt)
         bodies = VehicleBodies(self.world.client_id, MODEL_S, n, origin=self.world.origin)
         self.fleet = Fleet(BicycleModel(MODEL_S), bodies, buffer, planner, self.dt, self.world.solid_ids,
                            self.world.body_names)
