@@ -16,11 +16,13 @@ import pytest
 from click.testing import CliRunner
 
 from tavf_mapkit.opendrive import load_opendrive
-from tavf_mapkit.opendrive.geometry import GeometryKind
+from tavf_mapkit.opendrive.geometry import GeometryKind, param_poly3_length
+from tavf_mapkit.opendrive.reader import loads_opendrive
 from tavf_mapkit.opendrive.repair_curves import CURVE_AS_ARCS, KEPT_CURVE, TOLERANCE, repair_curves
 from tavf_mapkit.opendrive.repair_redundant import MERGED_RECORDS
 from tavf_mapkit.opendrive.sampling import sample_lanes
 from tavf_mapkit.opendrive.writer import to_xml, write_opendrive
+from tests.xodr_factory import document, road_xml
 
 SAMPLE = Path(__file__).resolve().parents[1] / "sample_data" / "tavf_synthetic.osm"
 UP_TO_OPENDRIVE = '[pipeline]\nstages = ["extract", "netconvert", "opendrive"]\n'
@@ -117,6 +119,39 @@ def test_repairing_the_repaired_file_changes_nothing(curves, tmp_path):
     same, repairs = repair_curves(again)
     assert repairs == [] and same is again
     assert to_xml(same) == (tmp_path / "repaired.xodr").read_bytes()
+
+
+def test_poly3_and_a_curve_a_hair_longer_than_its_length_become_arcs():
+    """A poly3, a paramPoly3 with pRange arcLength, and a normalized one whose @length exceeds its curve by less
+    than the @length repair corrects (5e-7 m: the chain runs on along its end tangent): all arcs, borders within
+    the tolerance, s unchanged."""
+    pp3 = (0.0, 30.0, 6.0, -3.0, 0.0, 0.0, 5.0, -2.0)
+    true = float(param_poly3_length(np.array([pp3 + (1.0,)]), np.array([1.0]))[0])
+    uv = " ".join(f'{k}="{v!r}"' for k, v in zip(("aU", "bU", "cU", "dU", "aV", "bV", "cV", "dV"), pp3))
+    geometries = (
+        '<geometry s="0" x="0" y="0" hdg="0" length="10"><line/></geometry>'
+        '<geometry s="10" x="10" y="0" hdg="0" length="20"><poly3 a="0" b="0" c="0.01" d="-0.0003"/></geometry>'
+        '<geometry s="30" x="30" y="3" hdg="0.2" length="25"><paramPoly3 aU="0" bU="1" cU="0" dU="0" aV="0" '
+        'bV="0" cV="0.004" dV="-0.0001" pRange="arcLength"/></geometry>'
+        f'<geometry s="55" x="55" y="9" hdg="0.4" length="{true + 5e-7!r}"><paramPoly3 {uv} '
+        'pRange="normalized"/></geometry>')
+    odr = loads_opendrive(document(road_xml(geometries, 55 + true + 5e-7)))
+    repaired, repairs = repair_curves(odr)
+    assert [r.action for r in repairs] == [CURVE_AS_ARCS] and "3 paramPoly3 and poly3" in repairs[0].detail
+    assert _kinds(repaired) <= {GeometryKind.LINE, GeometryKind.ARC}
+    s = np.linspace(0.0, odr.roads[0].length, 20_001)
+    before, after = odr.roads[0].reference_line, repaired.roads[0].reference_line
+    for t in (-3.0, 0.0, 3.5):  # the lanes' outer borders and the reference line
+        moved = np.linalg.norm(_offset_points(before, s, t) - _offset_points(after, s, t), axis=1)
+        assert moved.max() <= TOLERANCE, (t, moved.max())
+    starts = [g.s for g in after.geometries]
+    assert {0.0, 10.0, 30.0, 55.0} <= set(starts) and starts == sorted(starts)
+
+
+def _offset_points(line, s, t):
+    """Points at lateral offset t of a reference line at s."""
+    x, y, heading, _ = line.evaluate(s)
+    return np.column_stack([x - t * np.sin(heading), y + t * np.cos(heading)])
 
 
 def test_a_curve_that_needs_too_many_pieces_is_kept_and_named(curves):

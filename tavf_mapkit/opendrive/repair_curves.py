@@ -43,6 +43,7 @@ import numpy as np
 from tavf_mapkit.opendrive.geometry import ELEMENT_NAMES, Geometry, GeometryKind
 from tavf_mapkit.opendrive.refline import ReferenceLine
 from tavf_mapkit.opendrive.repair import Repair
+from tavf_mapkit.opendrive.repair_lengths import TOLERANCE as LENGTH_TOLERANCE
 from tavf_mapkit.opendrive.repair_redundant import redundant_lines, repair_redundant
 
 #: Repair.action of this repair: a curve replaced, and one kept (with why)
@@ -203,11 +204,13 @@ class Curves:
     hdg: np.ndarray
     p_end: np.ndarray
     table: np.ndarray  # (n, _GRID + 1): arc length at p_end * k / _GRID
+    overrun: np.ndarray | None = None  # how much longer than the curve its used part is (< LENGTH_TOLERANCE)
 
     @staticmethod
     def of(table, rows: np.ndarray, used: np.ndarray) -> tuple["Curves", np.ndarray]:
-        """The used part of each curve, and per curve whether it is shorter than its used length (a reader
-        would stand still at its end: no chain of arcs does that)."""
+        """The used part of each curve, and per curve whether it is shorter than its used length by more than
+        the @length repair leaves (a reader would stand still at its end: no chain of arcs does that). Up to
+        that, the chain runs on along the end's tangent (``overrun``), where the next geometry starts."""
         params = table.params[rows]
         poly3 = table.kind[rows] == int(GeometryKind.POLY3)
         unit = np.tile([0.0, 1.0, 0.0, 0.0], (len(rows), 1))
@@ -217,9 +220,9 @@ class Curves:
         whole = Curves(u, v, table.x[rows], table.y[rows], table.hdg[rows], p_max, np.zeros((len(rows), 1)))
         whole = whole._with_table()
         total = whole.table[:, -1]
-        short = used > total + JOINT
+        short = used > total + LENGTH_TOLERANCE
         p_end = np.where(used < total, whole.p_at(np.arange(len(rows)), np.minimum(used, total)), p_max)
-        return replace(whole, p_end=p_end)._with_table(), short
+        return replace(whole, p_end=p_end, overrun=np.maximum(used - total, 0.0))._with_table(), short
 
     def _with_table(self) -> "Curves":
         n = len(self.p_end)
@@ -451,7 +454,7 @@ def _arc_chains(curves, curve, pa, pb, used, lever, budget):
     weight = (lever[curve] + h) / budget
     frozen = np.zeros(len(knot), dtype=bool)
     origin = xa[first] + 1j * ya[first]
-    target = xb[last] + 1j * yb[last]
+    target = xb[last] + 1j * yb[last] + curves.overrun[curve[last]] * np.exp(1j * end_heading)
     span = np.r_[0.0, h[:-1]] + h  # a knot's share of the chain: half of each piece it joins
     n_curves = len(curves.p_end)
     owner = np.cumsum(first) - 1  # each piece's curve, numbered among the curves here
@@ -481,13 +484,14 @@ def _arc_chains(curves, curve, pa, pb, used, lever, budget):
     closed[curve[last]] = np.abs(miss) <= JOINT
     with np.errstate(all="ignore"):
         curvature = (knot_b - knot) / h
-    # the chain at the nodes and at each piece's start, against the curve at the same s
+    # the chain at the nodes and at both ends of each piece, against the curve at the same s (a knot's error
+    # is both pieces' it joins: a long piece before it can be what puts it off)
     chain_heading = knot[:, None] + curvature[:, None] * un
     chain = start[:, None] + un * _chord(knot[:, None], chain_heading)
     inside = np.abs(chain - (xn + 1j * yn)) + lever[curve][:, None] * np.abs(chain_heading - heading_n)
-    deviation = np.maximum(
-        inside.max(axis=1),
-        np.abs(start - (xa + 1j * ya)) + lever[curve] * np.abs(knot - heading_a))
+    at_knot = np.abs(start - (xa + 1j * ya)) + lever[curve] * np.abs(knot - heading_a)
+    at_end = np.where(last, 0.0, np.r_[at_knot[1:], 0.0])
+    deviation = np.maximum(inside.max(axis=1), np.maximum(at_knot, at_end))
     deviation = np.where(np.isfinite(curvature), deviation, np.inf)
     return (sa, start.real, start.imag, _wrap(knot), curvature, h), deviation, closed
 
@@ -519,7 +523,13 @@ def _straightened(knot, end_heading, first, last, weight):
     after = knot_b[run_last]  # the knot after the run: the next piece's start, or the curve's end
     mean = (np.bincount(runs, knot[pieces], n_runs) + after) / (np.bincount(runs, minlength=n_runs) + 1.0)
     heading = np.where(at_start, knot[run_first], np.where(at_end, after, mean))
-    usable = ~(at_start & at_end)  # a run over the whole curve: the curve is no line, or it would be one
+    # a run may turn no more in all than one piece may: made a line, its heading is off by up to that much
+    high, low, heavy = after.copy(), after.copy(), np.zeros(n_runs)
+    np.maximum.at(high, runs, knot[pieces])
+    np.minimum.at(low, runs, knot[pieces])
+    np.maximum.at(heavy, runs, weight[pieces])
+    usable = (high - low) * heavy <= _FLAT_SHARE
+    usable &= ~(at_start & at_end)  # a run over the whole curve: the curve is no line, or it would be one
     mine = pieces[usable[runs]]
     knot = knot.copy()
     knot[mine] = heading[run[mine]]
