@@ -153,7 +153,9 @@ def test_a_chunk_that_goes_on_in_line_is_joined_without_a_diagonal():
     beyond = np.column_stack([np.full(10, 10.0), -10.0 - 1.9 - np.arange(10.0), np.zeros(10)])
     x, y, lane, _ = _joined(turn, beyond)
     assert len(x) == 40 and np.array_equal(x[:30], turn[:, 0]) and np.array_equal(y[:30], turn[:, 1])
-    assert join_cut(1.9, 0.0) == 0.0 and join_cut(1.9, 0.5) == 2.0 * 2.0 and join_cut(0.0, 3.0) == 20.0
+    assert join_cut(1.9, 0.0) == 0.0 and join_cut(0.3, 0.5) == 2.0 * 2.0 - 0.3 and join_cut(0.0, 3.0) == 20.0
+    # a lane change's diagonal (route_spans: 3.2 m over 9 m) is left as it is
+    assert join_cut(9.0, 3.2) == 0.0
 
 
 def _drive_scripted_path(dt: float, seconds: float = 20.0) -> np.ndarray:

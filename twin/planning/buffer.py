@@ -35,14 +35,15 @@ def join_gap(end: np.ndarray, heading: float, start: np.ndarray) -> tuple[float,
 
 def join_cut(ahead: float, aside: float) -> float:
     """Metres of path before a chunk starting ``ahead`` metres beyond the path's end and ``aside`` metres to its
-    side that the blend replaces with a diagonal. None where the chunk goes on in line: sub-metre lanes stepped
-    over leave a gap straight ahead, which a straight joins (a diagonal from metres back would cut the bend
-    before it). A sideways gap (a lane merging into its neighbour, a kink between roads) is crossed like a
-    lane change, over more path the wider it is; a chunk starting behind the end (a connecting lane that
-    begins before its road ends) also takes back the path it overlaps."""
-    if aside <= JOIN_GAP and ahead >= 0.0:
+    side that the blend replaces with a diagonal. None where the straight from the end to the chunk is no jump:
+    in line (sub-metre lanes stepped over leave a gap straight ahead; a diagonal from metres back would cut the
+    bend before it) or at most 45 degrees off (the diagonal of a lane change, laid out by ``route_spans``). A
+    sideways jump (a lane merging into its neighbour, a kink between roads) is crossed like a lane change, over
+    more path the wider it is; a chunk starting behind the end (a connecting lane that begins before its road
+    ends) also takes back the path it overlaps."""
+    if (aside <= JOIN_GAP and ahead >= 0.0) or ahead >= aside:
         return 0.0
-    return 2.0 * float(np.clip(JOIN_PER_GAP * aside, JOIN_MIN, JOIN_MAX)) + max(-ahead, 0.0)
+    return 2.0 * float(np.clip(JOIN_PER_GAP * aside, JOIN_MIN, JOIN_MAX)) - ahead
 
 
 @dataclass(frozen=True, eq=False)
