@@ -114,7 +114,8 @@ def test_a_one_way_dead_end_restarts():
 
 def _road(road_id, x, y, hdg, length, link="", lane_link=""):
     return (f'<road id="{road_id}" length="{length}" junction="-1"><link>{link}</link>'
-            f'<planView><geometry s="0" x="{x}" y="{y}" hdg="{hdg}" length="{length}"><line/></geometry></planView>'
+            f'<planView><geometry s="0" x="{x}" y="{y}" hdg="{hdg}" length="{length}"><line/></geometry>'
+            '</planView>'
             f'<lanes><laneSection s="0"><center><lane id="0" type="none"/></center>'
             f'<right>{_lane(-1, link=lane_link)}</right></laneSection></lanes></road>')
 
@@ -127,13 +128,15 @@ def test_a_lane_leading_only_into_a_bend_no_car_can_take_is_never_driven():
     graph, lines = _graph(
         _road("1", 0, 0, 0, 80, link='<successor elementType="road" elementId="2" contactPoint="start"/>',
               lane_link='<successor id="-1"/>'),
-        _road("2", 78.25, -1.75, math.pi / 2, 60, link='<predecessor elementType="road" elementId="1" contactPoint="end"/>',
+        _road("2", 78.25, -1.75, math.pi / 2, 60,
+              link='<predecessor elementType="road" elementId="1" contactPoint="end"/>',
               lane_link='<predecessor id="-1"/>'),
         _road("3", 0, 50, 0, 70))
     first, second, other = LaneKey(0, 0, -1), LaneKey(1, 0, -1), LaneKey(2, 0, -1)
     assert graph.successors(first) == [second]
     routes = RandomRoutes(graph, lines)
-    assert routes.transitions.dropped[first, second].startswith("cuts a bend") and first in routes.transitions.blocked
+    assert routes.transitions.dropped[first, second].startswith("cuts a bend")
+    assert first in routes.transitions.blocked
     assert routes.mode == "restart" and routes.lanes == {second, other}
     items = _items(routes, 400, seed=2)
     assert first not in items and set(items[1::2]) == {RESTART}

@@ -1,7 +1,7 @@
-"""Roads that overlap at different heights: a road-side surface standing on another road's driving lane gives way
-to it (mesh/stacked.py), and where a junction's connecting lanes disagree in height its surface fades from one to
-the other instead of stepping (mesh/junctions.py, ``Drape``). Both on small synthetic maps, so they run in a
-second; CARLA's Town07 has both (tests/test_mesh_reference.py checks its lane borders)."""
+"""Roads that overlap at different heights: a road-side surface standing on another road's driving lane gives
+way to it (mesh/stacked.py), and where a junction's connecting lanes disagree in height its surface fades from
+one to the other instead of stepping (mesh/junctions.py, ``Drape``). Both on small synthetic maps, so they run
+in a second; CARLA's Town07 has both (tests/test_mesh_reference.py checks its lane borders)."""
 
 from __future__ import annotations
 
@@ -19,23 +19,28 @@ from tavf_mapkit.opendrive import loads_opendrive
 from tests.test_mesh_tiled import files
 from tests.xodr_factory import document
 
-SIDEWALK = ('<right><lane id="-1" type="sidewalk" level="false"><width sOffset="0" a="2" b="0" c="0" d="0"/>'
-            '</lane></right>')
-TWO_WAY = ('<left><lane id="1" type="driving" level="false"><width sOffset="0" a="3.5" b="0" c="0" d="0"/></lane>'
-           '</left><right><lane id="-1" type="driving" level="false"><width sOffset="0" a="3.5" b="0" c="0" d="0"/>'
-           '</lane></right>')
+
+def _lane(lane_id, kind, width):
+    return (f'<lane id="{lane_id}" type="{kind}" level="false">'
+            f'<width sOffset="0" a="{width}" b="0" c="0" d="0"/></lane>')
+
+
+SIDEWALK = f'<right>{_lane(-1, "sidewalk", 2)}</right>'
+TWO_WAY = f'<left>{_lane(1, "driving", 3.5)}</left><right>{_lane(-1, "driving", 3.5)}</right>'
 
 
 def _road(road_id, x, y, hdg, length, lanes, z=0.0, junction="-1"):
     return (f'<road id="{road_id}" length="{length}" junction="{junction}"><link/><planView>'
             f'<geometry s="0" x="{x}" y="{y}" hdg="{hdg}" length="{length}"><line/></geometry></planView>'
             f'<elevationProfile><elevation s="0" a="{z}" b="0" c="0" d="0"/></elevationProfile>'
-            f'<lanes><laneSection s="0"><center><lane id="0" type="none"/></center>{lanes}</laneSection></lanes>'
+            f'<lanes><laneSection s="0"><center><lane id="0" type="none"/></center>{lanes}</laneSection>'
+            '</lanes>'
             '</road>')
 
 
 # a two-way road along x (lanes from y=-3.5 to 3.5); the sidewalks of a side street as a road of their own,
-# 15 cm up, reaching 2 m into its left lane (Town07 draws them so); a footbridge 5 m up; a shoulder at road level
+# 15 cm up, reaching 2 m into its left lane (Town07 draws them so); a footbridge 5 m up; a shoulder at road
+# level
 STACKED = document(
     _road("1", 0, 0, 0, 300, TWO_WAY),
     _road("2", 50, 20, -math.pi / 2, 18.5, SIDEWALK, z=0.15),
@@ -49,8 +54,8 @@ def _heights(mesh, points):
     point, face = PlanIndex(triangles[:, :, :2], 1e-9).covering(points, 1e-9)
     a, b, c = (triangles[face, k] for k in range(3))
     normal = np.cross(b - a, c - a)
-    z = a[:, 2] - ((points[point, 0] - a[:, 0]) * normal[:, 0] + (points[point, 1] - a[:, 1]) * normal[:, 1]) \
-        / normal[:, 2]
+    dx, dy = points[point, 0] - a[:, 0], points[point, 1] - a[:, 1]
+    z = a[:, 2] - (dx * normal[:, 0] + dy * normal[:, 1]) / normal[:, 2]
     return [z[point == k] for k in range(len(points))]
 
 
@@ -83,8 +88,9 @@ def test_a_road_side_surface_standing_on_a_driving_lane_gives_way_to_it():
 
 
 def test_giving_way_does_not_depend_on_the_batch(tmp_path):
-    """The sidewalk road and the road it stands on are meshed in different batches (their units lie in different
-    tiles): the batch of the sidewalk meshes the other road's driving lanes itself, with the same result."""
+    """The sidewalk road and the road it stands on are meshed in different batches (their units lie in
+    different tiles): the batch of the sidewalk meshes the other road's driving lanes itself, with the same
+    result."""
     odr = loads_opendrive(STACKED)
     one = write_mesh_folder(odr, tmp_path / "one", batch_work=1e12, preview=False)
     many = write_mesh_folder(odr, tmp_path / "many", batch_work=1.0, preview=False)
@@ -93,13 +99,12 @@ def test_giving_way_does_not_depend_on_the_batch(tmp_path):
 
 
 def test_a_junction_fades_between_connecting_lanes_that_disagree_in_height():
-    """Two connecting lanes of a junction overlap by 1.5 m, 0.4 m apart in height (CARLA's Town07 has a junction
-    whose through lane runs 0.6 m below the turning lanes crossing it). No surface fits both; the junction's
-    used to step by half the difference at the edge of each lane's footprint (0.2 m within a 0.25 m triangle),
-    which a car's wheel took for a curb. Now it fades across the overlap: no steeper than the difference over
-    the overlap's width, and it still meets each lane where the other one is not."""
-    lane = ('<right><lane id="-1" type="driving" level="false"><width sOffset="0" a="3.5" b="0" c="0" d="0"/>'
-            '</lane></right>')
+    """Two connecting lanes of a junction overlap by 1.5 m, 0.4 m apart in height (CARLA's Town07 has a
+    junction whose through lane runs 0.6 m below the turning lanes crossing it). No surface fits both; the
+    junction's used to step by half the difference at the edge of each lane's footprint (0.2 m within a 0.25 m
+    triangle), which a car's wheel took for a curb. Now it fades across the overlap: no steeper than the
+    difference over the overlap's width, and it still meets each lane where the other one is not."""
+    lane = f'<right>{_lane(-1, "driving", 3.5)}</right>'
     odr = loads_opendrive(document(_road("10", 0, 0, 0, 20, lane, junction="5"),
                                    _road("11", 0, -2, 0, 20, lane, z=0.4, junction="5"),
                                    tail='<junction id="5" name="j"/>'))
@@ -108,5 +113,6 @@ def test_a_junction_fades_between_connecting_lanes_that_disagree_in_height():
     y = np.arange(-5.45, -0.05, 0.05)
     line = np.column_stack([np.full(len(y), 10.0), y])
     z = np.array([np.max(h) for h in _heights(mesh, line)])
-    assert z[y < -3.55] == pytest.approx(0.4, abs=0.05) and z[y > -1.95] == pytest.approx(0.0, abs=0.05)  # eps
+    # where one lane is alone, the surface is its height (within eps)
+    assert z[y < -3.55] == pytest.approx(0.4, abs=0.05) and z[y > -1.95] == pytest.approx(0.0, abs=0.05)
     assert np.max(np.abs(np.diff(z)) / 0.05) < 0.4 / 1.5 * 1.5

@@ -132,9 +132,9 @@ def _joined(*chunks):
 
 def test_a_chunk_that_starts_behind_the_paths_end_joins_on_a_diagonal_forwards():
     """Taipei: a junction's connecting lane starts 4.7 m before the end of the road leading into it. The path
-    crosses over to its start on a straight diagonal (``join_cut``); the blend once shortened the path and then
-    appended the chunk behind the old end, so the path ran 4.7 m back: the car turned round after it, left
-    the path and hit a building."""
+    crosses over to its start on a straight diagonal (``join_cut``); the blend once shortened the path and
+    then appended the chunk behind the old end, so the path ran 4.7 m back: the car turned round after it,
+    left the path and hit a building."""
     road = np.column_stack([np.arange(0.0, 60.0, 1.0), np.zeros(60), np.zeros(60)])
     junction = np.column_stack([np.arange(55.0, 70.0, 1.0), np.full(15, 1.0), np.zeros(15)])
     x, y, lane, s = _joined(road, junction)

@@ -191,10 +191,10 @@ class Drape:
         weights = _barycentric(points[point_index], tri[face, :, :2])
         z = np.einsum("ij,ij->i", weights, tri[face, :, 2])
         count = np.bincount(point_index, minlength=len(points))
-        # each lane counts by how far inside it the point lies (its distance to the lane's nearer side border),
-        # so where overlapping connecting lanes disagree in height the mean fades from one to the other across
-        # a lane's width instead of stepping at the edge of its footprint (Town07's junction 763: 9 cm steps a
-        # car's wheel took for a curb)
+        # each lane counts by how far inside it the point lies (its distance to the lane's nearer side
+        # border), so where overlapping connecting lanes disagree in height the mean fades from one to the
+        # other across a lane's width instead of stepping at the edge of its footprint (Town07's junction 763:
+        # 9 cm steps a car's wheel took for a curb)
         if self.outer is None:
             lane_weight = np.ones(len(face))
         else:

@@ -1,14 +1,14 @@
 """Where a road-side surface of one road lies on a driving lane of another, a little higher: the driving lane
 wins.
 
-OpenDRIVE lets roads overlap. Where a lane that is not for driving (sidewalk, shoulder, border, ...) of one road
-covers a driving lane of another road from a few centimetres up, a car on the driving lane runs into it: its
-wheels climb the other road's surface as they would a curb. CARLA's Town07 draws the sidewalks at the mouth of a
-side street as a road of their own (lanes sidewalk, shoulder, none), 12-15 cm above the through road by their
-elevation, and lets it reach 2.6 m into the through road's driving lane; the twin's car hit that edge four times
-in ten minutes. Such parts are cut out of the road-side faces: exact plan-view clipping of each triangle by the
-driving triangles it stands on, the rest triangulated again (GEOS constrained Delaunay), heights and (s, t)
-taken on the triangle's own plane, so what is left is the same surface, only smaller.
+OpenDRIVE lets roads overlap. Where a lane that is not for driving (sidewalk, shoulder, border, ...) of one
+road covers a driving lane of another road from a few centimetres up, a car on the driving lane runs into it:
+its wheels climb the other road's surface as they would a curb. CARLA's Town07 draws the sidewalks at the
+mouth of a side street as a road of their own (lanes sidewalk, shoulder, none), 12-15 cm above the through
+road by their elevation, and lets it reach 2.6 m into the through road's driving lane; the twin's car hit that
+edge four times in ten minutes. Such parts are cut out of the road-side faces: exact plan-view clipping of
+each triangle by the driving triangles it stands on, the rest triangulated again (GEOS constrained Delaunay),
+heights and (s, t) taken on the triangle's own plane, so what is left is the same surface, only smaller.
 
 Left alone: overlaps at the same height (less than ``STACK_MIN`` up: the same ground drawn twice, nothing to
 run into; CARLA's towns have hundreds), road-side surfaces below a driving lane (a car never meets them), and
@@ -42,8 +42,8 @@ def _height_on(mesh: LabelledMesh, faces: np.ndarray, points: np.ndarray) -> np.
 
 
 def stacked_regions(mesh: LabelledMesh, candidates: np.ndarray, driving: LabelledMesh) -> dict[int, object]:
-    """Face index (of ``candidates``, faces of ``mesh``) -> the plan region of it that lies on driving faces of
-    other roads, from ``STACK_MIN`` to ``STACK_CLEARANCE`` above them."""
+    """Face index (of ``candidates``, faces of ``mesh``) -> the plan region of it that lies on driving faces
+    of other roads, from ``STACK_MIN`` to ``STACK_CLEARANCE`` above them."""
     if not len(candidates) or not len(driving.faces):
         return {}
     own = _plan_polygons(mesh, candidates)
@@ -79,9 +79,9 @@ def stacked_regions(mesh: LabelledMesh, candidates: np.ndarray, driving: Labelle
 def cut_stacked_roadside(mesh: LabelledMesh, driving: LabelledMesh) -> tuple[LabelledMesh, dict[int, object]]:
     """(``mesh`` with its road-side faces cut where they stand on driving faces of other roads, road index ->
     the plan region cut away from that road). ``driving``: the driving-lane faces of the roads around (those
-    of ``mesh``'s own roads may be among them; a road is never cut by itself). Faces keep their order, each cut
-    face replaced in place by the triangles of what is left of it; vertical curb faces of a road standing in
-    its cut region are dropped."""
+    of ``mesh``'s own roads may be among them; a road is never cut by itself). Faces keep their order, each
+    cut face replaced in place by the triangles of what is left of it; vertical curb faces of a road standing
+    in its cut region are dropped."""
     kind = mesh.kind
     corners = mesh.vertices[mesh.faces][:, :, :2]
     u, v = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
@@ -104,7 +104,7 @@ def cut_stacked_roadside(mesh: LabelledMesh, driving: LabelledMesh) -> tuple[Lab
 
 
 def _remaining_triangles(mesh: LabelledMesh, face: int, region) -> np.ndarray:
-    """(k, 3, 2) plan triangles of what is left of ``face`` once ``region`` is cut away, oriented as the face."""
+    """Plan triangles (k, 3, 2) of what is left of ``face`` without ``region``, oriented as the face."""
     polygon = _plan_polygons(mesh, np.array([face]))[0]
     rest = _overlay(shapely.difference, polygon, region)
     parts = shapely.get_parts(rest)

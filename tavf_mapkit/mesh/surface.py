@@ -84,7 +84,8 @@ def _driving_around(odr, lanes: LabelledMesh, units: MeshUnits, roads: np.ndarra
     sections = np.flatnonzero(np.isin(odr.arrays.section_road, missing))
     samples = adaptive_samples(odr, eps, max_segment, sections=sections)
     around, _ = build_lane_meshes(odr, sample_lanes_at(odr, samples.section, samples.s))
-    return LabelledMesh.concatenate([lanes.select(driving), around.select(around.kind == KIND_CODE["driving"])])
+    around_driving = around.select(around.kind == KIND_CODE["driving"])
+    return LabelledMesh.concatenate([lanes.select(driving), around_driving])
 
 
 def road_surface(odr, eps: float = DEFAULT_EPS) -> LabelledMesh:

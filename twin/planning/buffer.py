@@ -26,21 +26,21 @@ KEEP_BEHIND = 16  # points kept behind the vehicle when shifting
 
 
 def join_gap(end: np.ndarray, heading: float, start: np.ndarray) -> tuple[float, float]:
-    """(ahead, aside): where a chunk starting at ``start`` lies from a path ending at ``end`` with ``heading``,
-    metres along the heading (negative: behind the end) and across it."""
+    """(ahead, aside): where a chunk starting at ``start`` lies from a path ending at ``end`` with
+    ``heading``, metres along the heading (negative: behind the end) and across it."""
     dx, dy = float(start[0] - end[0]), float(start[1] - end[1])
     c, s = math.cos(heading), math.sin(heading)
     return c * dx + s * dy, abs(c * dy - s * dx)
 
 
 def join_cut(ahead: float, aside: float) -> float:
-    """Metres of path before a chunk starting ``ahead`` metres beyond the path's end and ``aside`` metres to its
-    side that the blend replaces with a diagonal. None where the straight from the end to the chunk is no jump:
-    in line (sub-metre lanes stepped over leave a gap straight ahead; a diagonal from metres back would cut the
-    bend before it) or at most 45 degrees off (the diagonal of a lane change, laid out by ``route_spans``). A
-    sideways jump (a lane merging into its neighbour, a kink between roads) is crossed like a lane change, over
-    more path the wider it is; a chunk starting behind the end (a connecting lane that begins before its road
-    ends) also takes back the path it overlaps."""
+    """Metres of path before a chunk starting ``ahead`` metres beyond the path's end and ``aside`` metres to
+    its side that the blend replaces with a diagonal. None where the straight from the end to the chunk is no
+    jump: in line (sub-metre lanes stepped over leave a gap straight ahead; a diagonal from metres back would
+    cut the bend before it) or at most 45 degrees off (the diagonal of a lane change, laid out by
+    ``route_spans``). A sideways jump (a lane merging into its neighbour, a kink between roads) is crossed
+    like a lane change, over more path the wider it is; a chunk starting behind the end (a connecting lane
+    that begins before its road ends) also takes back the path it overlaps."""
     if (aside <= JOIN_GAP and ahead >= 0.0) or ahead >= aside:
         return 0.0
     return 2.0 * float(np.clip(JOIN_PER_GAP * aside, JOIN_MIN, JOIN_MAX)) - ahead
@@ -178,10 +178,10 @@ class PathBuffer:
         self._curvature_limit(i, max(n - 8, 0), m)
 
     def _blend(self, i: int, cut: float) -> None:
-        """Where lane ends do not meet (a lane merging into its neighbour, a kink between roads), drop the last
-        ``cut`` metres (``join_cut``) of the path not yet reached, so the path crosses over to the next chunk's
-        start on a straight diagonal like a lane change, inside the lanes it leaves, instead of jumping
-        sideways."""
+        """Where lane ends do not meet (a lane merging into its neighbour, a kink between roads), drop the
+        last ``cut`` metres (``join_cut``) of the path not yet reached, so the path crosses over to the next
+        chunk's start on a straight diagonal like a lane change, inside the lanes it leaves, instead of
+        jumping sideways."""
         n = int(self.count[i])
         keep_until = min(int(self.base[i]) + 2, n)
         kept = int(np.searchsorted(self.s[i, :n], self.s[i, n - 1] - cut, side="right"))

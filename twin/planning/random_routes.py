@@ -21,8 +21,8 @@ Where the walk goes, in order of preference:
 
 Dead ends of our own making are left out first: a lane the map leads on from, but only into a bend the car
 cannot drive, with no lane change towards a lane that drives on and nowhere to turn around, is dropped, and so
-is a lane that leads only into dropped ones (the walk would stop in the middle of a junction and restart there).
-Restarts and turnarounds happen where the map ends.
+is a lane that leads only into dropped ones (the walk would stop in the middle of a junction and restart
+there). Restarts and turnarounds happen where the map ends.
 
 Turnarounds and restarts appear in the walk as ``RouteBreak`` items; the twin performs them (docs/twin.md).
 Inside the chosen lanes every lane has a way on, lane changes are only made towards a lane that can drive

@@ -19,9 +19,9 @@ from twin.vehicle.params import VehicleParams
 RAY_ABOVE = 1.2  # m above the last wheel height: more than any curb or ramp step in one step, less than a deck
 RAY_BELOW = 4.0
 CURB_STEP = 0.08  # m: a wheel that rises more than this within CURB_RUN of its travel has met a curb
-# m: ...a rise that steep (40 degrees and more) is an edge: the faces of curbs, raised lanes and junction curbs are
-# vertical. The same rise over a longer run is ground: a steep street at speed, or a junction whose connecting
-# roads disagree in height (Town07: 0.6 m apart where their footprints overlap by 1.5 m)
+# m: ...a rise that steep (40 degrees and more) is an edge: the faces of curbs, raised lanes and junction
+# curbs are vertical. The same rise over a longer run is ground: a steep street at speed, or a junction whose
+# connecting roads disagree in height (Town07: 0.6 m apart where their footprints overlap by 1.5 m)
 CURB_RUN = 0.1
 PROBE_STEP = 0.05  # m between the rays that look for the edge along a wheel's travel
 VEHICLE_GROUP = 0x40  # collision filter group of vehicle boxes; their mask 0 makes rays pass through them
@@ -137,7 +137,8 @@ class VehicleBodies:
         if len(heights) < 2:
             return 0.0
         reach = max(int(round(CURB_RUN / (length / (count - 1) if length > 0 else CURB_RUN))), 1)
-        return float(max(np.max(heights[k:] - heights[:-k]) for k in range(1, min(reach, len(heights) - 1) + 1)))
+        reach = min(reach, len(heights) - 1)
+        return float(max(np.max(heights[k:] - heights[:-k]) for k in range(1, reach + 1)))
 
     def place(self, x, y, yaw, ground: Ground) -> None:
         """Move the boxes: bottom face at ground clearance above the fitted plane, centred on the bounding box."""
