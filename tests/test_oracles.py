@@ -168,8 +168,9 @@ def test_carla_median_on_the_tavf_build_is_below_a_tenth_of_a_millimetre(tavf_bu
 
 
 def test_carla_p99_on_the_tavf_build_is_below_a_centimetre(tavf_build_carla):
-    """Repaired (@length = arc length): p99 4 mm; unrepaired netconvert output has 4 cm. The few centimetres
-    left at the maximum (16 cm) are CARLA's polyline near tight connecting roads."""
+    """Repaired, curves as arcs: p99 0.19 mm (paramPoly3 kept: 4 mm, CARLA's polyline near tight connecting
+    roads, up to 16 cm). The ~1 cm left at the maximum is CARLA's single-precision arc: it adds radius x
+    cos(heading) rounded to a float, a millimetre per 10 km of radius (gentle curves, inflections)."""
     assert tavf_build_carla["p99_m"] < 0.01, tavf_build_carla
 
 

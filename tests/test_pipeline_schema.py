@@ -82,7 +82,7 @@ def test_the_table_of_a_listed_stage_that_is_not_installed_is_kept_unchecked(tmp
 def test_every_key_of_the_example_pipeline_is_known():
     config = load_pipeline(REPO / "pipelines" / "tavf.toml")
     assert set(config.sections) == {"area", "extract", "netconvert", "opendrive", "mesh", "collision", "check"}
-    assert config.section("opendrive") == {"repair": True}
+    assert config.section("opendrive") == {"repair": True, "curves": "arcs"}
     assert len(config.section("check")["thresholds"]) == 6
 
 
