@@ -24,9 +24,9 @@ its excess) and the curve fitted again. Pieces that turn so little that a line d
 that a single line follows within the tolerance becomes one <line>.
 
 TOLERANCE is 1 mm, the measure of the @length repair ("lane borders stay where they were"): on DLR's TAVF
-build it makes 1,399 curves 36,700 arcs (+8 MB of XML, 3 s); 0.1 mm would take 106,000 arcs and keep twelve
-curves that need more than MAX_PIECES. Either way both oracles then read the file as we do (they evaluate the
-same arcs); the tolerance only bounds how far the lanes moved from netconvert's curves.
+build it makes 1,399 curves 37,000 arcs (+8 MB of XML, 3 s); 0.1 mm would take 106,000. Either way both
+oracles then read the file as we do (they evaluate the same arcs); the tolerance only bounds how far the lanes
+moved from netconvert's curves.
 
 A curve that would need more than MAX_PIECES arcs, or whose arcs cannot be fitted (a cusp, an @length longer
 than the curve), is kept as it is, and a Repair record says so. A road whose geometries are not in s order is
