@@ -56,6 +56,8 @@ TOLERANCE = 1e-3
 JOINT = 1e-8
 #: most arcs one curve may become; a curve that needs more is kept (and noted)
 MAX_PIECES = 512
+CURVES_PER_BATCH = 2000
+SECTIONS_PER_BATCH = 2000
 #: a curvature whose arc stays this close (m, rad) to its tangent line over its length is written as a line
 STRAIGHT = 1e-10
 
@@ -91,7 +93,10 @@ def repair_curves(odr, tolerance: float = TOLERANCE, max_pieces: int = MAX_PIECE
     used = np.minimum(table.length[rows], following - table.s[rows])
     lever = _widest_offsets(odr, np.unique(table.group[rows]))
     widest = np.array([lever.get(int(g), 0.0) for g in table.group[rows]])
-    fits = fit_curves(table, rows, used, widest, tolerance, max_pieces)
+    fits = []  # in batches of curves: memory bounded by the batch, not the map (Maribor: 6 GB in one go)
+    for first in range(0, len(rows), CURVES_PER_BATCH):
+        batch = slice(first, first + CURVES_PER_BATCH)
+        fits += fit_curves(table, rows[batch], used[batch], widest[batch], tolerance, max_pieces)
 
     roads, repairs = list(odr.roads), []
     by_road: dict = {}
@@ -137,14 +142,16 @@ def _widest_offsets(odr, road_indices: np.ndarray, step: float = 1.0) -> dict:
     from tavf_mapkit.opendrive.sampling import sample_lanes_at, section_samples
 
     arrays = odr.arrays
-    sections = np.flatnonzero(np.isin(arrays.section_road, road_indices))
-    if not len(sections):
+    all_sections = np.flatnonzero(np.isin(arrays.section_road, road_indices))
+    if not len(all_sections):
         return {}
-    sampling = sample_lanes_at(odr, *section_samples(arrays, step, True, sections))
     widest = np.zeros(len(odr.roads))
-    np.maximum.at(widest, arrays.section_road[sampling.sample_section], np.abs(sampling.lane_offset))
-    if len(sampling.pair_lane):
-        np.maximum.at(widest, sampling.road_index, np.abs(sampling.t_outer))
+    for first in range(0, len(all_sections), SECTIONS_PER_BATCH):  # whole-map samples would not fit in memory
+        sections = all_sections[first:first + SECTIONS_PER_BATCH]
+        sampling = sample_lanes_at(odr, *section_samples(arrays, step, True, sections))
+        np.maximum.at(widest, arrays.section_road[sampling.sample_section], np.abs(sampling.lane_offset))
+        if len(sampling.pair_lane):
+            np.maximum.at(widest, sampling.road_index, np.abs(sampling.t_outer))
     return {int(r): float(widest[r]) for r in road_indices}
 
 
