@@ -3,6 +3,7 @@ unknown elements and userData go back verbatim under the parent they came from."
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 from lxml import etree
@@ -10,7 +11,7 @@ from lxml import etree
 from tavf_mapkit.opendrive.cubic import CubicProfile
 from tavf_mapkit.opendrive.geometry import ELEMENT_NAMES, PARAMETER_NAMES, GeometryKind
 from tavf_mapkit.opendrive.network import OpenDriveMap
-from tavf_mapkit.fileutil import write_bytes_atomic
+from tavf_mapkit.fileutil import staged_file
 from tavf_mapkit.xmlsafe import safe_parser
 
 
@@ -46,16 +47,48 @@ def _cubic_records(parent, tag: str, profile: CubicProfile, s_name: str = "s", b
 
 
 def to_xml(odr: OpenDriveMap) -> bytes:
-    root = etree.Element("OpenDRIVE")
+    return b"".join(_serialized(odr))
+
+
+def write_opendrive(odr: OpenDriveMap, path: str | Path) -> None:
+    """Write atomically (a temporary file beside the target, then a rename), one top-level element at a time:
+    a whole-document tree of a region's OpenDRIVE takes several GB (Maribor's build was killed at 6 GB)."""
+    with staged_file(path) as temporary, open(temporary, "wb") as out:
+        for chunk in _serialized(odr):
+            out.write(chunk)
+
+
+def _serialized(odr: OpenDriveMap) -> Iterator[bytes]:
+    """The document as pieces, each top-level element built, indented as in the whole tree and freed in turn."""
+    yield b"<?xml version='1.0' encoding='UTF-8'?>\n<OpenDRIVE>\n"
+    for holder in _top_level(odr):
+        for element in holder:
+            etree.indent(element, space="    ", level=1)
+            yield b"    " + etree.tostring(element, encoding="UTF-8", with_tail=False) + b"\n"
+    yield b"</OpenDRIVE>\n"
+
+
+def _top_level(odr: OpenDriveMap) -> Iterator[etree._Element]:
+    """A stand-in root per top-level item, holding that item's element(s) only."""
+    def holder():
+        return etree.Element("OpenDRIVE")
+
+    root = holder()
     _header(root, odr.header)
+    yield root
     for road in odr.roads:
+        root = holder()
         _road(root, road)
+        yield root
     for controller in odr.controllers:
+        root = holder()
         element = _sub(root, "controller", controller.attrib, id=controller.id)
         for signal_id in controller.signal_ids:
             _sub(element, "control", signalId=signal_id)
         _append_verbatim(element, controller.extra_xml)
+        yield root
     for junction in odr.junctions:
+        root = holder()
         element = _sub(root, "junction", junction.attrib, id=junction.id)
         for connection in junction.connections:
             c = _sub(element, "connection", connection.attrib, id=connection.id,
@@ -67,14 +100,10 @@ def to_xml(odr: OpenDriveMap) -> bytes:
         for controller in junction.controllers:
             _sub(element, "controller", id=controller.id, type=controller.type, sequence=controller.sequence)
         _append_verbatim(element, junction.extra_xml)
+        yield root
+    root = holder()
     _append_verbatim(root, odr.extra_xml)
-    etree.indent(root, space="    ")
-    return etree.tostring(root, xml_declaration=True, encoding="UTF-8", pretty_print=True)
-
-
-def write_opendrive(odr: OpenDriveMap, path: str | Path) -> None:
-    """Write atomically: a temporary file beside the target, then a rename."""
-    write_bytes_atomic(path, to_xml(odr))
+    yield root
 
 
 def _header(root, header) -> None:
