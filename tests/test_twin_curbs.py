@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from tests.test_twin_vehicle import DT, _box, _straight_fleet, client  # noqa: F401 -- client is a fixture
+from tests.test_twin_vehicle import DT, _ramp, _straight_fleet, client  # noqa: F401 -- client is a fixture
 from twin.vehicle.body import CURB_STEP
 
 
@@ -17,12 +17,8 @@ def test_a_steep_street_at_speed_is_no_curb(client):  # noqa: F811
     travel: ground, not an edge (Town07's junction 763, whose connecting roads disagree by 0.6 m, rises as
     steeply where their footprints overlap). The 15 cm step of test_twin_vehicle is still a curb."""
     cid, _ = client
-    angle = math.radians(15.0)
-    half = [40.0, 5.0, 0.25]
-    start = 20.0
-    centre_x = start + half[0] * math.cos(angle) + half[2] * math.sin(angle)
-    centre_z = half[0] * math.sin(angle) - half[2] * math.cos(angle)
-    _box(cid, [centre_x, 0.0, centre_z], half, pitch=angle)
+    start, angle = 20.0, math.radians(15.0)
+    _ramp(cid, 15.0, start)
     fleet = _straight_fleet(cid)
     rises = []
     for step in range(1, 200):

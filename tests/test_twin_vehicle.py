@@ -108,15 +108,19 @@ def _straight_fleet(cid, length=120.0, speed=8.0, solids=frozenset()):
     return fleet
 
 
-def test_the_car_climbs_a_ramp_and_sits_on_it(client):
-    cid, _ = client
-    angle = math.radians(5.0)
-    # a ramp starting at x = 20 m: a long thin box tilted up by 5 degrees
+def _ramp(cid, degrees: float, start: float = 20.0) -> None:
+    """A ramp starting at x = ``start``: a long thin box tilted up by ``degrees``, its top surface meeting z = 0."""
+    angle = math.radians(degrees)
     half = [40.0, 5.0, 0.25]
-    start = 20.0
     centre_x = start + half[0] * math.cos(angle) + half[2] * math.sin(angle)
     centre_z = half[0] * math.sin(angle) - half[2] * math.cos(angle)
     _box(cid, [centre_x, 0.0, centre_z], half, pitch=angle)
+
+
+def test_the_car_climbs_a_ramp_and_sits_on_it(client):
+    cid, _ = client
+    start, angle = 20.0, math.radians(5.0)
+    _ramp(cid, 5.0, start)
     fleet = _straight_fleet(cid)
     for step in range(1, 200):
         fleet.step(step * DT)
