@@ -253,3 +253,106 @@ def test_hostile_repeats_are_refused_not_ground_through(tmp_path):
     assert parts.skipped == (refused,)
     wall = parts.solids[0].mesh.to_trimesh()  # 20 m long, DEFAULT_POST thick, 1 m high
     assert wall.volume == pytest.approx(20.0 * 0.1 * 1.0, rel=1e-9)
+
+
+# a left turn of a one-lane connecting road, as netconvert draws Glasshouse Yard into Goswell Road (London):
+# the lane (1.85 m, right of the reference line) has its centre on a circle of TURN_RADIUS around TURN_CENTRE
+LANE_WIDTH = 1.85
+TURN_CENTRE = np.array([30.0, 7.5])
+TURN_RADIUS = 7.5 + LANE_WIDTH / 2
+
+
+def _turn_with_buildings(tmp_path):
+    """An OpenDRIVE (straight 30 m east, a 90-degree left arc, straight 30 m north; one driving lane) and an
+    OSM file with two buildings: way 1 pokes a corner into the turn 0.7 m inside the lane centre, way 2 stands
+    1.8 m beside the straight lane's centre."""
+    from tavf_mapkit.opendrive.georef import GeoReference
+
+    proj = "+proj=tmerc +lat_0=51.5214 +lon_0=-0.0975 +k=1 +x_0=0 +y_0=0 +ellps=WGS84 +units=m +no_defs"
+    lanes = f"""
+        <laneSection s="0">
+          <center><lane id="0" type="none" level="false"/></center>
+          <right><lane id="-1" type="driving" level="false">
+            <width sOffset="0" a="{LANE_WIDTH}" b="0" c="0" d="0"/></lane></right>
+        </laneSection>"""
+    arc = 7.5 * math.pi / 2
+    roads = [road_xml('<geometry s="0" x="0" y="0" hdg="0" length="30"><line/></geometry>', 30.0, lanes,
+                      road_id="1"),
+             road_xml(f'<geometry s="0" x="30" y="0" hdg="0" length="{arc!r}"><arc curvature="{1 / 7.5!r}"/>'
+                      "</geometry>", arc, lanes, road_id="2"),
+             road_xml(f'<geometry s="0" x="37.5" y="7.5" hdg="{math.pi / 2!r}" length="30"><line/>'
+                      "</geometry>", 30.0, lanes, road_id="3")]
+    xodr = tmp_path / "turn.xodr"
+    xodr.write_text(document(*roads, header_extra=f"<geoReference><![CDATA[{proj}]]></geoReference>"))
+    # way 1: a 6 m square north-west of its south-east corner, which lies on the turn's bisector
+    corner = TURN_CENTRE + (TURN_RADIUS - 0.7) * np.array([math.cos(-math.pi / 4), math.sin(-math.pi / 4)])
+    square = corner + np.array([[0.0, 0.0], [0.0, 6.0], [-6.0, 6.0], [-6.0, 0.0]])
+    # way 2: 10 m x 4 m south of the straight road, 1.8 m from its lane's centre (y = -LANE_WIDTH / 2)
+    beside = np.array([[5.0, -1.8], [15.0, -1.8], [15.0, -5.8], [5.0, -5.8]]) - [0.0, LANE_WIDTH / 2]
+    geo = GeoReference(proj)
+    nodes, ways = [], []
+    for way, ring in ((1, square), (2, beside)):
+        lon, lat = geo.local_to_wgs84(ring[:, 0], ring[:, 1])
+        ids = [10 * way + k for k in range(len(ring))]
+        nodes += [f'<node id="{i}" lat="{la!r}" lon="{lo!r}"/>'
+                  for i, lo, la in zip(ids, np.asarray(lon).tolist(), np.asarray(lat).tolist())]
+        refs = "".join(f'<nd ref="{i}"/>' for i in ids + ids[:1])
+        ways.append(f'<way id="{way}">{refs}<tag k="building" v="yes"/></way>')
+    osm = tmp_path / "turn.osm"
+    osm.write_text('<?xml version="1.0"?>\n<osm version="0.6">\n' + "\n".join(nodes + ways) + "\n</osm>\n")
+    return xodr, osm
+
+
+def _footprint(solid):
+    """The plan-view footprint of an extruded building solid (the union of its bottom faces)."""
+    import shapely
+
+    triangles = solid.mesh.vertices[solid.mesh.faces]
+    bottom = np.all(triangles[:, :, 2] == solid.mesh.vertices[:, 2].min(), axis=1)
+    return shapely.union_all(shapely.polygons(triangles[bottom][:, :, :2]))
+
+
+def test_buildings_leave_the_swept_path_of_a_tight_turn_free(tmp_path):
+    """A building corner that OSM puts into a tight turn is cut back to the swept path of a car on the lane
+    (not only 0.5 m from the lane's surface, which leaves a car 1.96 m wide no room in a 1.85 m lane); a
+    building beside a straight lane keeps its footprint; the tiled mesher makes the same solids."""
+    import shapely
+
+    from tavf_mapkit.mesh.folder import write_mesh_folder
+    from tavf_mapkit.mesh.solid_buildings import OVERHEAD_CLEARANCE, building_parts
+    from tavf_mapkit.mesh.swept_path import followable, swept_width
+    from tavf_mapkit.mesh.tiled import read_labelled_index, read_labelled_tile
+
+    xodr, osm = _turn_with_buildings(tmp_path)
+    odr = load_opendrive(xodr)
+    surface = road_surface(odr, 0.05)
+    buildings = [s for s in scene_solid_parts(odr, surface, osm).solids if s.kind == "building"]
+    turn = [s for s in buildings if s.source.startswith("osm way 1 ")]
+    ground = [s for s in turn if s.mesh.vertices[:, 2].min() < 0]
+    assert ground and [s.source for s in turn if s not in ground] == ["osm way 1 passage 1 over the road"]
+    over = [s.mesh.vertices[:, 2].min() for s in turn if s not in ground]
+    assert over == pytest.approx([OVERHEAD_CLEARANCE])
+    # the lane's centre line through the turn, to a micrometre
+    angle = np.linspace(-math.pi / 2, 0.0, 20001)
+    centre = shapely.LineString(TURN_CENTRE + TURN_RADIUS * np.column_stack([np.cos(angle), np.sin(angle)]))
+    need = float(swept_width(np.array([1.0 / TURN_RADIUS]))[0])
+    assert need > 1.7
+    # (a piece sharper than the wheelbase, a U-turn's, would count at the straight width)
+    assert followable(swept_width(np.array([1.0 / TURN_RADIUS, 0.5]))).tolist() == [need, 1.25]
+    assert min(_footprint(s).distance(centre) for s in ground) >= need - 1e-3
+    # beside the straight lane: the whole footprint (as OSM's 1e-7 degree coordinates place it), uncut
+    straight = [s for s in buildings if s.source.startswith("osm way 2")]
+    assert [s.source for s in straight] == ["osm way 2"]
+    as_mapped = dict((where, polygon) for where, polygon, _ in building_parts(odr, osm)[0])["osm way 2"]
+    assert _footprint(straight[0]).symmetric_difference(as_mapped).area < 1e-6
+
+    # the tiled mesher makes the same buildings
+    write_mesh_folder(odr, tmp_path / "mesh", osm_path=osm, eps=0.05)
+    labelled = tmp_path / "mesh" / "labelled"
+    tiled = [solid for name in read_labelled_index(labelled)["tiles"]
+             for solid in read_labelled_tile(labelled / f"{name}.npz")[1].solids if solid.kind == "building"]
+    assert sorted(s.source for s in tiled) == sorted(s.source for s in buildings)
+    whole = {s.source: s.mesh for s in buildings}
+    for solid in tiled:
+        assert np.array_equal(solid.mesh.faces, whole[solid.source].faces)
+        assert np.array_equal(solid.mesh.vertices, whole[solid.source].vertices)

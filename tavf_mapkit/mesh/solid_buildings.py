@@ -20,6 +20,7 @@ from pathlib import Path
 
 import manifold3d
 import numpy as np
+import shapely
 
 from tavf_mapkit.mesh.solid_kit import Solid, SolidError, to_solid
 
@@ -146,7 +147,6 @@ def read_footprints(osm_path: Path) -> list[Footprint]:
 
 def footprint_polygons(footprint: Footprint, to_local):
     """Valid shapely polygons of a footprint in local coordinates (member ways joined into rings)."""
-    import shapely
     from shapely.ops import linemerge
 
     lines = {"outer": [], "inner": []}
@@ -167,6 +167,8 @@ def footprint_polygons(footprint: Footprint, to_local):
 
 def building_solids(odr, surface, osm_path: Path | None) -> tuple[list[Solid], list[str]]:
     """Extruded OSM buildings; empty when there is no OSM input or no georeference to place it."""
+    from tavf_mapkit.mesh.swept_path import centre_pieces
+
     if osm_path is None:
         return [], []
     if odr.georeference is None:
@@ -174,7 +176,8 @@ def building_solids(odr, surface, osm_path: Path | None) -> tuple[list[Solid], l
     parts, skipped = building_parts(odr, osm_path)
     ground = ground_heights(surface)
     solids = []
-    for _, where, polygon, extent in passage_pieces(parts, surface):
+    pieces = centre_pieces(odr) if parts else None
+    for _, where, polygon, extent in passage_pieces(parts, surface, pieces=pieces):
         try:
             solids.append(extrude_building(polygon, extent, ground, where))
         except SolidError as error:
@@ -204,44 +207,81 @@ def building_parts(odr, osm_path: Path) -> tuple[list[tuple], list[str]]:
     return parts, skipped
 
 
-def passage_pieces(parts, surface, numbers=None) -> list[tuple]:
-    """(part number, where, polygon, extent) of every piece to extrude: a part that stands on a drivable lane
-    (a passage through the building, mapped on the street as ``tunnel=building_passage``) is cut there, and its
-    piece over the lane starts at OVERHEAD_CLEARANCE -- the road exists in the OpenDRIVE, so the building
-    must let it through. Only the drivable faces under a part matter. ``numbers``: the parts' own numbers
-    (their index in ``parts`` by default)."""
-    import shapely
+def passage_pieces(parts, surface, numbers=None, pieces: tuple | None = None) -> list[tuple]:
+    """(part number, where, polygon, extent) of every piece to extrude: a part that stands where cars drive is
+    cut there, and its piece over the lanes starts at OVERHEAD_CLEARANCE -- the road exists in the OpenDRIVE,
+    so the building must let it through (a passage, mapped on the street as ``tunnel=building_passage``, or
+    a corner that OSM and netconvert's lanes disagree on). Where cars drive: the drivable faces under a part,
+    PASSAGE_MARGIN wide, and the swept paths of the driving lanes (``pieces``: ``swept_path.centre_pieces``
+    of at least the roads near the parts), which reach beyond a lane's border in a tight turn. Pieces
+    sharper than a car follows count at the straight width (``swept_path.followable``): a U-turn connector at
+    its capped widening would carve whole rooms out of the buildings beside it. ``numbers``: the parts' own
+    numbers (their index in ``parts`` by default)."""
+    numbers = list(range(len(parts))) if numbers is None else list(numbers)
+    keep_free = _drivable_near(parts, surface)
+    for i, areas in _swept_near(parts, pieces).items():
+        keep_free[i] = shapely.union_all([keep_free[i], *areas] if i in keep_free else areas)
+    out = []
+    for i, (number, (where, polygon, (bottom, top))) in enumerate(zip(numbers, parts)):
+        if i not in keep_free:
+            out.append((number, where, polygon, (bottom, top)))
+            continue
+        free = keep_free[i]
+        ground_parts = shapely.get_parts(shapely.make_valid(polygon.difference(free)))
+        over_parts = shapely.get_parts(shapely.make_valid(polygon.intersection(free)))
+        cut = [(p, (bottom, top), "") for p in ground_parts]
+        over_bottom = bottom if bottom > 0 else OVERHEAD_CLEARANCE
+        if top > over_bottom:
+            cut += [(p, (over_bottom, top), " over the road") for p in over_parts]
+        k = 0
+        for piece, extent, note in cut:
+            if piece.geom_type == "Polygon" and piece.area >= MIN_AREA:
+                out.append((number, f"{where} passage {k}{note}", piece, extent))
+                k += 1
+    return out
 
+
+def _drivable_near(parts, surface) -> dict:
+    """{part index: the drivable faces it stands on, grown by PASSAGE_MARGIN} for the parts on any."""
     from tavf_mapkit.mesh.kinds import DRIVABLE_KINDS
     from tavf_mapkit.mesh.labelled import KIND_CODE
 
-    numbers = list(range(len(parts))) if numbers is None else list(numbers)
     if surface is None or not parts or not len(surface.faces):
-        return [(n, where, polygon, extent) for n, (where, polygon, extent) in zip(numbers, parts)]
+        return {}
     drivable = np.isin(surface.kind, [KIND_CODE[k] for k in DRIVABLE_KINDS])
     triangles = shapely.polygons(surface.vertices[surface.faces[drivable]][:, :, :2])
     triangles = triangles[shapely.area(triangles) > 1e-9]
     tree = shapely.STRtree([polygon for _, polygon, _ in parts])
     part_index, triangle_index = tree.query(triangles, predicate="intersects")[::-1]
-    out = []
-    for i, (number, (where, polygon, (bottom, top))) in enumerate(zip(numbers, parts)):
-        mine = triangle_index[part_index == i]
-        if not len(mine):
-            out.append((number, where, polygon, (bottom, top)))
-            continue
-        lanes = shapely.union_all(triangles[mine]).buffer(PASSAGE_MARGIN)
-        ground_parts = shapely.get_parts(shapely.make_valid(polygon.difference(lanes)))
-        over_parts = shapely.get_parts(shapely.make_valid(polygon.intersection(lanes)))
-        pieces = [(p, (bottom, top), "") for p in ground_parts]
-        over_bottom = bottom if bottom > 0 else OVERHEAD_CLEARANCE
-        if top > over_bottom:
-            pieces += [(p, (over_bottom, top), " over the road") for p in over_parts]
-        k = 0
-        for piece, extent, note in pieces:
-            if piece.geom_type == "Polygon" and piece.area >= MIN_AREA:
-                out.append((number, f"{where} passage {k}{note}", piece, extent))
-                k += 1
-    return out
+    return {i: shapely.union_all(triangles[triangle_index[part_index == i]]).buffer(PASSAGE_MARGIN)
+            for i in np.unique(part_index).tolist()}
+
+
+def _swept_near(parts, pieces: tuple | None) -> dict:
+    """{part index: the swept areas (``swept_path.swept_areas``) that overlap it, in the lanes' order} for the
+    parts any overlaps. Only the overlapping ones, so that the cut does not depend on which other lanes
+    were passed."""
+    from tavf_mapkit.mesh.swept_path import followable, swept_areas
+
+    if pieces is None or not parts or not len(pieces[0]):
+        return {}
+    lines, width = pieces[0], followable(pieces[1])
+    polygons = np.array([polygon for _, polygon, _ in parts], dtype=object)
+    tree = shapely.STRtree(lines)
+    part_index, piece = tree.query(polygons, predicate="dwithin", distance=float(width.max()))
+    if not len(piece):
+        return {}
+    hit, at = np.unique(piece, return_inverse=True)
+    areas = swept_areas(lines[hit], width[hit])
+    overlaps = shapely.intersects(polygons[part_index], areas[at])
+    part_index, piece, at = part_index[overlaps], piece[overlaps], at[overlaps]
+    order = np.lexsort((piece, part_index))
+    part_index, at = part_index[order], at[order]
+    if not len(part_index):
+        return {}
+    starts = np.flatnonzero(np.r_[True, part_index[1:] != part_index[:-1]])
+    ends = np.r_[starts[1:], len(part_index)]
+    return {int(part_index[s]): list(areas[at[s:e]]) for s, e in zip(starts, ends)}
 
 
 def ground_point(polygon) -> np.ndarray:

@@ -26,6 +26,9 @@ MARGIN = 0.25             # m: how far a driver stays off a curb
 STEP = 0.5                # m of s between centre-line samples
 PIECE = 10                # samples per piece of centre line that gets one swept width
 QUAD_SEGMENTS = 2         # segments per quarter circle of the round ends (coarse: it is a clearance)
+# m: the farthest a swept area (``swept_areas``) reaches from its centre line: the widest swept half width,
+# widened as its round ends are
+REACH = (DESIGN_HALF_WIDTH + DESIGN_WHEELBASE + MARGIN) / np.cos(np.pi / (4 * QUAD_SEGMENTS))
 
 
 def swept_width(curvature: np.ndarray) -> np.ndarray:
@@ -100,14 +103,30 @@ def swept_section(odr, near: np.ndarray, anchor: np.ndarray, roads: np.ndarray |
     hit = np.unique(hit)
     if not len(hit):
         return manifold3d.CrossSection()
-    # round ends and joints are polygons with QUAD_SEGMENTS sides per quarter: widen them so they circumscribe
-    circumscribe = 1.0 / np.cos(np.pi / (4 * QUAD_SEGMENTS))
-    areas = shapely.orient_polygons(shapely.buffer(lines[hit], width[hit] * circumscribe, quad_segs=QUAD_SEGMENTS))
-    rings = shapely.get_exterior_ring(shapely.get_parts(areas))  # a buffer of a line has no holes
+    # a buffer of a line has no holes
+    rings = shapely.get_exterior_ring(shapely.get_parts(swept_areas(lines[hit], width[hit])))
     coordinates, ring = shapely.get_coordinates(rings, return_index=True)
     cuts = np.flatnonzero(np.diff(ring)) + 1
     return manifold3d.CrossSection([part[:-1] - anchor for part in np.split(coordinates, cuts)],
                                    manifold3d.FillRule.Positive)
+
+
+def swept_areas(lines: np.ndarray, width: np.ndarray) -> np.ndarray:
+    """The swept area of every centre-line piece (``centre_pieces``' lines and half widths), one shapely
+    polygon per piece: the piece buffered by its width, widened so that the polygons of its round ends and
+    joints circumscribe their circles."""
+    # round ends and joints are polygons with QUAD_SEGMENTS sides per quarter: widen them so they circumscribe
+    circumscribe = 1.0 / np.cos(np.pi / (4 * QUAD_SEGMENTS))
+    return shapely.orient_polygons(shapely.buffer(lines, width * circumscribe, quad_segs=QUAD_SEGMENTS))
+
+
+def followable(width: np.ndarray) -> np.ndarray:
+    """Swept half widths (``swept_width``) with every piece sharper than a car can follow as drawn -- a
+    radius below the wheelbase, where the widening stops at the wheelbase: U-turn connectors and polyline
+    kinks, which a car cuts (and the twin does not drive) -- at the straight width instead. For solids that
+    must leave free where cars drive but would lose far too much to the capped widening (buildings)."""
+    capped = width >= DESIGN_HALF_WIDTH + DESIGN_WHEELBASE + MARGIN
+    return np.where(capped, DESIGN_HALF_WIDTH + MARGIN, width)
 
 
 def centre_pieces(odr, roads: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -101,7 +101,7 @@ def write_tiled_mesh(odr, folder: str | Path, eps: float, fmt: str = "glb", tile
         if solids:
             surface = _SurfaceTiles(stores["surface"], spill_grid, tally.reach)
             _junction_curbs(odr, units, surface, stores, tally)
-            _buildings(odr, osm_path, surface, stores, tally)
+            _buildings(odr, units, osm_path, surface, stores, tally)
         origin = origin_of_bounds(tally.low, tally.high) if origin is None else tuple(float(v) for v in origin)
         grid = TileGrid(origin, float(tile_size))
         summary = _write_tiles(odr, folder, fmt, grid, stores, tally, preview, exports, eps, osm_path, solids,
@@ -326,12 +326,13 @@ def _cluster_curbs(odr, units, unit, surface, around, junction_rank, stores, tal
     _spill_solids(made, stores, tally, surface.grid)
 
 
-def _buildings(odr, osm_path, surface: _SurfaceTiles, stores, tally: _Tally) -> None:
-    """Pass 3: OSM buildings, in groups by block of tiles, each cut where it stands on a drivable lane and
-    standing on the lowest of its nearest road-surface vertices."""
+def _buildings(odr, units, osm_path, surface: _SurfaceTiles, stores, tally: _Tally) -> None:
+    """Pass 3: OSM buildings, in groups by block of tiles, each cut where it stands on a drivable lane or in
+    a driving lane's swept path and standing on the lowest of its nearest road-surface vertices."""
     from tavf_mapkit.mesh.kinds import DRIVABLE_KINDS
     from tavf_mapkit.mesh.solid_buildings import building_parts, extrude_building, ground_point, passage_pieces
     from tavf_mapkit.mesh.solid_kit import SolidError
+    from tavf_mapkit.mesh.swept_path import REACH, centre_pieces
 
     if osm_path is None:
         return
@@ -356,7 +357,10 @@ def _buildings(odr, osm_path, surface: _SurfaceTiles, stores, tally: _Tally) -> 
             near = (np.all(plan.min(axis=1) <= box[2:], axis=1) & np.all(plan.max(axis=1) >= box[:2], axis=1)
                     & np.isin(context.mesh.kind, drivable))
             mesh = context.mesh.select(np.flatnonzero(near))
-        pieces = passage_pieces([parts[k] for k in members], mesh, members.tolist())
+        # the swept paths that can reach the group: of the roads whose coarse box (which holds their lanes)
+        # comes within a swept path's reach of it; a swept piece depends on its own lane alone
+        swept = centre_pieces(odr, units.roads_near(box, REACH))
+        pieces = passage_pieces([parts[k] for k in members], mesh, members.tolist(), swept)
         points = np.array([ground_point(polygon) for _, _, polygon, _ in pieces]).reshape(-1, 2)
         heights = _ground_heights(surface, points)
         made, previous, count = [], None, 0
