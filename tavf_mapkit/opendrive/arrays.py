@@ -12,7 +12,7 @@ import numpy as np
 
 from tavf_mapkit.opendrive.budget import SampleBudget
 from tavf_mapkit.opendrive.cubic import CubicProfile
-from tavf_mapkit.opendrive.geometry import GeometryTable
+from tavf_mapkit.opendrive.geometry import GEOMETRY_COLUMNS, GeometryTable
 
 
 @dataclass(frozen=True, eq=False)
@@ -112,11 +112,10 @@ class NetworkArrays:
         roads = odr.roads
         lengths = np.array([road.length for road in roads], dtype=float)
         span = float(max(lengths.max(initial=0.0), 1.0) * 2.0 + 10.0)
-        geometries, groups = [], []
-        for index, road in enumerate(roads):
-            geometries.extend(road.reference_line.geometries)
-            groups.extend([index] * len(road.reference_line.geometries))
-        table = GeometryTable.from_geometries(geometries, np.array(groups, dtype=np.int64))
+        counts = np.array([len(road.reference_line) for road in roads], dtype=np.int64)
+        rows = (np.concatenate([road.reference_line.rows for road in roads]) if roads
+                else np.zeros((0, GEOMETRY_COLUMNS)))
+        table = GeometryTable.from_rows(rows, np.repeat(np.arange(len(roads), dtype=np.int64), counts))
         section_road, section_s0, section_end = [], [], []
         lane_section, lane_id, lane_rank, lane_border_flag, lane_type, widths, borders = [], [], [], [], [], [], []
         heights_inner, heights_outer = [], []

@@ -69,8 +69,9 @@ class SampleBudget:
         if len(bad):
             first_of_road = np.searchsorted(table.group, table.group[bad], side="left")
             for k, first in zip(bad.tolist(), first_of_road.tolist()):
-                geometry = roads[int(table.group[k])].reference_line.geometries[k - first]
-                note(int(table.group[k]), geometry.line, "geometry", vertex_problem(geometry.x, geometry.y))
+                line = int(roads[int(table.group[k])].reference_line.lines[k - first])
+                note(int(table.group[k]), None if line < 0 else line, "geometry",
+                     vertex_problem(float(table.x[k]), float(table.y[k])))
         spans = f"spans {length_text(extent.diagonal)}" if extent else "has no vertex on Earth"
         for road in np.flatnonzero(~(lengths <= road_limit)).tolist():
             note(road, roads[road].line, "road", f"@length={lengths[road]:.6g} m is implausible: the map's geometry "

@@ -53,9 +53,32 @@ class Geometry:
     line: int | None = field(default=None, compare=False)
     extra_xml: tuple[bytes, ...] = field(default=(), compare=False)
 
-    def parameter_row(self) -> list[float]:
-        row = list(self.params) + [0.0] * (9 - len(self.params))
-        return row[:9]
+
+#: one numeric row per geometry record: s, x, y, hdg, length, kind, then the 9 parameter slots (zero-padded)
+GEOMETRY_COLUMNS = 15
+_PARAMETER_COUNT = {kind: len(names) for kind, names in PARAMETER_NAMES.items()}
+
+
+def geometry_rows(geometries) -> tuple[np.ndarray, np.ndarray, dict | None]:
+    """(rows, lines, extra_xml) of Geometry values, the compact form ReferenceLine keeps."""
+    n = len(geometries)
+    rows = np.zeros((n, GEOMETRY_COLUMNS))
+    for k, g in enumerate(geometries):
+        rows[k, :6] = (g.s, g.x, g.y, g.hdg, g.length, int(g.kind))
+        rows[k, 6:6 + len(g.params)] = g.params[:9]
+    lines = np.array([-1 if g.line is None else g.line for g in geometries], dtype=np.int32)
+    extra_xml = {k: g.extra_xml for k, g in enumerate(geometries) if g.extra_xml}
+    return rows, lines, extra_xml or None
+
+
+def geometries_from_rows(rows: np.ndarray, lines: np.ndarray, extra_xml: dict | None) -> tuple[Geometry, ...]:
+    extra_xml = extra_xml or {}
+    out = []
+    for k, (row, line) in enumerate(zip(rows.tolist(), lines.tolist())):
+        kind = GeometryKind(int(row[5]))
+        out.append(Geometry(row[0], row[1], row[2], row[3], row[4], kind, tuple(row[6:6 + _PARAMETER_COUNT[kind]]),
+                            None if line < 0 else line, extra_xml.get(k, ())))
+    return tuple(out)
 
 
 @dataclass(frozen=True, eq=False)
@@ -72,16 +95,17 @@ class GeometryTable:
     params: np.ndarray  # (n, 9)
 
     @staticmethod
-    def from_geometries(geometries, group: np.ndarray | None = None) -> "GeometryTable":
-        n = len(geometries)
-        values = np.array([(g.s, g.x, g.y, g.hdg, g.length, int(g.kind)) for g in geometries], dtype=float)
-        values = values.reshape(n, 6)
-        params = np.array([g.parameter_row() for g in geometries], dtype=float).reshape(n, 9)
+    def from_rows(rows: np.ndarray, group: np.ndarray | None = None) -> "GeometryTable":
+        """Columns of (n, GEOMETRY_COLUMNS) rows (views, no copy)."""
+        n = len(rows)
         return GeometryTable(
             np.zeros(n, dtype=np.int64) if group is None else np.asarray(group, dtype=np.int64),
-            values[:, 0], values[:, 1], values[:, 2], values[:, 3], values[:, 4],
-            values[:, 5].astype(np.int8), params,
+            rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3], rows[:, 4], rows[:, 5].astype(np.int8), rows[:, 6:],
         )
+
+    @staticmethod
+    def from_geometries(geometries, group: np.ndarray | None = None) -> "GeometryTable":
+        return GeometryTable.from_rows(geometry_rows(geometries)[0], group)
 
     def __len__(self) -> int:
         return len(self.s)

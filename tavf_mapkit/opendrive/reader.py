@@ -8,12 +8,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 from lxml import etree
 
 from tavf_mapkit.errors import InputError
 from tavf_mapkit.opendrive.cubic import CubicProfile
 from tavf_mapkit.opendrive.diagnostics import Diagnostic
-from tavf_mapkit.opendrive.geometry import Geometry, GeometryKind
+from tavf_mapkit.opendrive.geometry import GEOMETRY_COLUMNS, GeometryKind
 from tavf_mapkit.opendrive.header import Header, Offset
 from tavf_mapkit.opendrive.junction import Connection, Controller, Junction, JunctionController, LaneLink
 from tavf_mapkit.opendrive.lane import Lane, LaneHeight, LaneRecord, RoadMark, RoadMarkLine
@@ -29,6 +30,7 @@ _GEOMETRY_TAGS = {
     "line": GeometryKind.LINE, "arc": GeometryKind.ARC, "spiral": GeometryKind.SPIRAL,
     "poly3": GeometryKind.POLY3, "paramPoly3": GeometryKind.PARAM_POLY3,
 }
+_GEOMETRY_TAG_SET = set(_GEOMETRY_TAGS)
 _CUBIC = ("a", "b", "c", "d")
 _LANE_RECORDS = frozenset({"speed", "access", "material", "visibility", "rule"})
 
@@ -222,7 +224,7 @@ class _Reader:
             extra["link"] = self.unknown(link, {"predecessor", "successor"})
         types = tuple(self.road_type(t) for t in self.children(element, "type"))
         plan_view = self.child(element, "planView")
-        geometries = self.plan_view(plan_view, length) if plan_view is not None else ()
+        reference_line = self.plan_view(plan_view) if plan_view is not None else ReferenceLine()
         if plan_view is None:
             self.warn("road has no <planView>", element)
         elevation = superelevation = lane_offset = None
@@ -268,7 +270,7 @@ class _Reader:
         if lane_offset is not None:
             kwargs["lane_offset"] = lane_offset
         return Road(
-            id=road_id, length=length, reference_line=ReferenceLine(geometries), lane_sections=sections,
+            id=road_id, length=length, reference_line=reference_line, lane_sections=sections,
             junction=element.get("junction", "-1"), name=element.get("name", ""), rule=element.get("rule", "RHT"),
             predecessor=predecessor, successor=successor, types=types, shape=shape, objects=objects,
             signals=signals, signal_references=references, line=self.line(element), attrib=dict(element.attrib),
@@ -292,8 +294,9 @@ class _Reader:
         return RoadType(self.number(element, "s", 0.0), element.get("type", "unknown"), element.get("country"),
                         speed_max, dict(element.attrib), dict(speed.attrib) if speed is not None else None)
 
-    def plan_view(self, element, road_length: float) -> tuple[Geometry, ...]:
-        geometries = []
+    def plan_view(self, element) -> ReferenceLine:
+        # rows, not Geometry objects: a map's curves as arcs are millions of records (see refline.py)
+        rows, lines, extra_xml = [], [], {}
         for g in self.children(element, "geometry"):
             s = self.number(g, "s", required=True)
             x = self.number(g, "x", required=True)
@@ -330,10 +333,18 @@ class _Reader:
                 params = ()
             if length == 0.0:
                 self.warn(f"zero-length <{tag}> geometry at s={s:g}; tolerated", g)
-            geometries.append(Geometry(s, x, y, hdg, length, kind, params, self.line(g),
-                                       self.unknown(g, set(_GEOMETRY_TAGS))))
-        geometries.sort(key=lambda geometry: geometry.s)
-        return tuple(geometries)
+            unknown = self.unknown(g, _GEOMETRY_TAG_SET)
+            if unknown:
+                extra_xml[len(rows)] = unknown
+            rows.append((s, x, y, hdg, length, int(kind)) + params + (0.0,) * (9 - len(params)))
+            line = self.line(g)
+            lines.append(-1 if line is None else line)
+        order = sorted(range(len(rows)), key=lambda k: rows[k][0])  # stable, like the records' own order
+        if order != list(range(len(rows))):
+            rows, lines = [rows[k] for k in order], [lines[k] for k in order]
+            extra_xml = {order.index(k): v for k, v in extra_xml.items()}
+        return ReferenceLine.from_rows(np.array(rows, dtype=float).reshape(-1, GEOMETRY_COLUMNS),
+                                       np.array(lines, dtype=np.int32), extra_xml)
 
     def lane_sections(self, lanes_element, road_length: float) -> tuple[LaneSection, ...]:
         sections = []

@@ -71,7 +71,7 @@ def repair_untrusted_geometry(odr, extent: Extent | None = None):
     roads, repairs, dropped = list(odr.roads), [], set()
     for index in sorted(suspects):
         road = roads[index]
-        n = len(road.reference_line.geometries)
+        n = len(road.reference_line)
         start = first_of.get(index, 0)
         valid = np.r_[~bad_vertex[start:start + n], not end_of[index][2]] if n else np.zeros(0, bool)
         lateral = index in budget.problems and budget.problems[index][1] not in ("geometry", "road")

@@ -65,7 +65,7 @@ def repair_geometry_lengths(odr, tolerance: float = TOLERANCE):
     roads, repairs = list(odr.roads), []
     for index in np.unique(table.group[wrong]).tolist():
         road = roads[index]
-        n = len(road.reference_line.geometries)
+        n = len(road.reference_line)
         rows = slice(int(starts[index]), int(starts[index]) + n)
         s = table.s[rows]
         if np.any(np.diff(s) < 0):

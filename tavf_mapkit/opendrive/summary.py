@@ -7,15 +7,14 @@ from collections import Counter
 import numpy as np
 
 from tavf_mapkit.errors import MapkitError
-from tavf_mapkit.opendrive.geometry import ELEMENT_NAMES
+from tavf_mapkit.opendrive.geometry import ELEMENT_NAMES, GeometryKind
 
 
 def summarise(odr) -> dict:
     lanes_by_type: Counter = Counter()
     geometry_types: Counter = Counter()
     for road in odr.roads:
-        for geometry in road.reference_line.geometries:
-            geometry_types[ELEMENT_NAMES[geometry.kind]] += 1
+        geometry_types.update(ELEMENT_NAMES[GeometryKind(kind)] for kind in road.reference_line.rows[:, 5].tolist())
         for section in road.lane_sections:
             for lane in section.side_lanes:
                 lanes_by_type[lane.type] += 1
