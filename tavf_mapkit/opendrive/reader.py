@@ -71,8 +71,27 @@ class _Reader:
         self.source = source
         self.warnings: list[Diagnostic] = []
         self.road_id: str | None = None
+        self.strings: dict[str, str] = {}
 
     # -- helpers ---------------------------------------------------------------------------------------------
+    def word(self, element, name: str, default: str | None = None) -> str | None:
+        """An attribute whose values repeat across the map (a type, a rule, a road id), shared (see attrib)."""
+        value = element.get(name)
+        return default if value is None else self.strings.setdefault(value, value)
+
+    def attrib(self, element) -> dict:
+        """The element's attributes as a dict, names and word values shared: a city map has millions of
+        attributes, mostly the same few names and words ("type", "driving", "solid"), and lxml makes a new
+        string for each. Numbers are not shared (nearly all distinct)."""
+        strings = self.strings
+        out = {}
+        for name, value in element.attrib.items():
+            name = strings.setdefault(name, name)
+            if value and not (value[0].isdigit() or value[0] in "-+."):
+                value = strings.setdefault(value, value)
+            out[name] = value
+        return out
+
     def line(self, element) -> int | None:
         return element.sourceline + self.source.line_offset if element.sourceline else None
 
@@ -203,7 +222,7 @@ class _Reader:
             north=self.number(element, "north", 0.0), south=self.number(element, "south", 0.0),
             east=self.number(element, "east", 0.0), west=self.number(element, "west", 0.0),
             vendor=element.get("vendor"), geo_reference=geo_text, offset=offset, line=self.line(element),
-            attrib=dict(element.attrib), extra_xml=self.unknown(element, known),
+            attrib=self.attrib(element), extra_xml=self.unknown(element, known),
         )
 
     # -- roads -----------------------------------------------------------------------------------------------
@@ -271,20 +290,20 @@ class _Reader:
             kwargs["lane_offset"] = lane_offset
         return Road(
             id=road_id, length=length, reference_line=reference_line, lane_sections=sections,
-            junction=element.get("junction", "-1"), name=element.get("name", ""), rule=element.get("rule", "RHT"),
+            junction=self.word(element, "junction", "-1"), name=element.get("name", ""), rule=self.word(element, "rule", "RHT"),
             predecessor=predecessor, successor=successor, types=types, shape=shape, objects=objects,
-            signals=signals, signal_references=references, line=self.line(element), attrib=dict(element.attrib),
+            signals=signals, signal_references=references, line=self.line(element), attrib=self.attrib(element),
             extra_xml={k: v for k, v in extra.items() if v}, **kwargs,
         )
 
     def road_link(self, element) -> RoadLink | None:
         if element is None:
             return None
-        element_id = element.get("elementId")
+        element_id = self.word(element, "elementId")
         if element_id is None:
             raise self.error("link without @elementId", element)
-        return RoadLink(element.get("elementType", "road"), element_id, element.get("contactPoint"),
-                        dict(element.attrib))
+        return RoadLink(self.word(element, "elementType", "road"), element_id, self.word(element, "contactPoint"),
+                        self.attrib(element))
 
     def road_type(self, element) -> RoadType:
         speed = self.child(element, "speed")
@@ -292,7 +311,7 @@ class _Reader:
         if speed is not None:
             speed_max = speed_to_mps(speed.get("max"), speed.get("unit"))
         return RoadType(self.number(element, "s", 0.0), element.get("type", "unknown"), element.get("country"),
-                        speed_max, dict(element.attrib), dict(speed.attrib) if speed is not None else None)
+                        speed_max, self.attrib(element), self.attrib(speed) if speed is not None else None)
 
     def plan_view(self, element) -> ReferenceLine:
         # rows, not Geometry objects: a map's curves as arcs are millions of records (see refline.py)
@@ -358,7 +377,7 @@ class _Reader:
                 for lane_element in self.children(group_element, "lane"):
                     lanes.append(self.lane(lane_element, s0))
             sections.append(LaneSection(
-                s0, tuple(lanes), element.get("singleSide"), self.line(element), dict(element.attrib),
+                s0, tuple(lanes), element.get("singleSide"), self.line(element), self.attrib(element),
                 self.unknown(element, {"left", "center", "right"})))
         sections.sort(key=lambda section: section.s0)
         # zero-length lane sections are legal but carry no surface: keep them, evaluation skips them
@@ -390,15 +409,15 @@ class _Reader:
                 heights.append(LaneHeight(section_s0 + self.number(child, "sOffset", 0.0),
                                           self.number(child, "inner", 0.0), self.number(child, "outer", 0.0)))
             elif tag in _LANE_RECORDS:
-                records.append(LaneRecord(tag, section_s0 + self.number(child, "sOffset", 0.0), dict(child.attrib),
+                records.append(LaneRecord(tag, section_s0 + self.number(child, "sOffset", 0.0), self.attrib(child),
                                           tuple(_verbatim(c) for c in child if isinstance(c.tag, str))))
             elif isinstance(tag, str):
                 unknown.append(_verbatim(child))
         level = element.get("level", "false").lower() in ("true", "1")
         return Lane(
-            lane_id, element.get("type", "none"), level, predecessor, successor,
+            lane_id, self.word(element, "type", "none"), level, predecessor, successor,
             CubicProfile.from_records(widths, extend_first=True), CubicProfile.from_records(borders, extend_first=True),
-            tuple(heights), tuple(marks), tuple(records), self.line(element), dict(element.attrib), tuple(unknown),
+            tuple(heights), tuple(marks), tuple(records), self.line(element), self.attrib(element), tuple(unknown),
         )
 
     def road_mark(self, element, section_s0: float) -> RoadMark:
@@ -411,16 +430,16 @@ class _Reader:
             lines = tuple(
                 RoadMarkLine(self.number(line, "length", 0.0), self.number(line, "space", 0.0),
                              self.number(line, "tOffset", 0.0), self.number(line, "sOffset", 0.0),
-                             self.number(line, "width"), line.get("rule"), line.get("color"), dict(line.attrib))
+                             self.number(line, "width"), self.word(line, "rule"), self.word(line, "color"), self.attrib(line))
                 for line in self.children(source, "line"))
             if type_element is not None:
-                type_name = type_element.get("name")
+                type_name = self.word(type_element, "name")
                 type_width = self.number(type_element, "width")
         return RoadMark(
-            section_s0 + self.number(element, "sOffset", 0.0), element.get("type", "none"), element.get("weight"),
-            element.get("color", "standard"), self.number(element, "width"), element.get("laneChange"),
-            self.number(element, "height"), element.get("material"), type_name, type_width, lines, explicit,
-            dict(element.attrib), self.unknown(element, {"type", "explicit"}),
+            section_s0 + self.number(element, "sOffset", 0.0), self.word(element, "type", "none"), self.word(element, "weight"),
+            self.word(element, "color", "standard"), self.number(element, "width"), self.word(element, "laneChange"),
+            self.number(element, "height"), self.word(element, "material"), type_name, type_width, lines, explicit,
+            self.attrib(element), self.unknown(element, {"type", "explicit"}),
         )
 
     def road_object(self, element) -> RoadObject:
@@ -438,7 +457,7 @@ class _Reader:
             length=self.number(element, "length"), width=self.number(element, "width"),
             height=self.number(element, "height"), radius=self.number(element, "radius"),
             orientation=element.get("orientation", "none"), repeats=repeats, outlines=outlines,
-            line=self.line(element), attrib=dict(element.attrib),
+            line=self.line(element), attrib=self.attrib(element),
             extra_xml=self.unknown(element, {"repeat", "outline", "outlines"}),
         )
 
@@ -449,7 +468,7 @@ class _Reader:
             n(element, "tStart", 0.0), n(element, "tEnd", 0.0), n(element, "zOffsetStart", 0.0),
             n(element, "zOffsetEnd", 0.0), n(element, "heightStart"), n(element, "heightEnd"),
             n(element, "widthStart"), n(element, "widthEnd"), n(element, "lengthStart"), n(element, "lengthEnd"),
-            n(element, "radiusStart"), n(element, "radiusEnd"), dict(element.attrib),
+            n(element, "radiusStart"), n(element, "radiusEnd"), self.attrib(element),
         )
 
     def outline(self, element) -> Outline:
@@ -459,13 +478,13 @@ class _Reader:
             if tag == "cornerLocal":
                 corners.append(OutlineCorner(tag, self.number(corner, "u", 0.0), self.number(corner, "v", 0.0),
                                              self.number(corner, "z", 0.0), self.number(corner, "height", 0.0),
-                                             dict(corner.attrib)))
+                                             self.attrib(corner)))
             elif tag == "cornerRoad":
                 corners.append(OutlineCorner(tag, self.number(corner, "s", 0.0), self.number(corner, "t", 0.0),
                                              self.number(corner, "dz", 0.0), self.number(corner, "height", 0.0),
-                                             dict(corner.attrib)))
+                                             self.attrib(corner)))
         closed = element.get("closed", "true").lower() in ("true", "1")
-        return Outline(tuple(corners), closed, dict(element.attrib))
+        return Outline(tuple(corners), closed, self.attrib(element))
 
     def signal(self, element) -> Signal:
         return Signal(
@@ -476,13 +495,13 @@ class _Reader:
             value=self.number(element, "value"), unit=element.get("unit"), name=element.get("name", ""),
             height=self.number(element, "height"), width=self.number(element, "width"),
             h_offset=self.number(element, "hOffset", 0.0), pitch=self.number(element, "pitch", 0.0),
-            roll=self.number(element, "roll", 0.0), line=self.line(element), attrib=dict(element.attrib),
+            roll=self.number(element, "roll", 0.0), line=self.line(element), attrib=self.attrib(element),
             extra_xml=tuple(_verbatim(c) for c in element if isinstance(c.tag, str)),
         )
 
     def signal_reference(self, element) -> SignalReference:
         return SignalReference(element.get("id", ""), self.number(element, "s", 0.0), self.number(element, "t", 0.0),
-                               element.get("orientation", "+"), dict(element.attrib),
+                               element.get("orientation", "+"), self.attrib(element),
                                tuple(_verbatim(c) for c in element if isinstance(c.tag, str)))
 
     # -- junctions and controllers ---------------------------------------------------------------------------
@@ -494,18 +513,18 @@ class _Reader:
                           for link in self.children(c, "laneLink"))
             connections.append(Connection(
                 c.get("id", ""), c.get("incomingRoad", ""), c.get("connectingRoad", c.get("linkedRoad", "")),
-                c.get("contactPoint", "start"), links, dict(c.attrib), self.unknown(c, {"laneLink"})))
+                c.get("contactPoint", "start"), links, self.attrib(c), self.unknown(c, {"laneLink"})))
         controllers = tuple(JunctionController(c.get("id", ""), c.get("type"), self.integer(c, "sequence"))
                             for c in self.children(element, "controller"))
         return Junction(element.get("id", ""), element.get("name", ""), element.get("type", "default"),
-                        tuple(connections), controllers, self.line(element), dict(element.attrib),
+                        tuple(connections), controllers, self.line(element), self.attrib(element),
                         self.unknown(element, {"connection", "controller"}))
 
     def controller(self, element) -> Controller:
         self.road_id = None
         return Controller(element.get("id", ""), element.get("name", ""), self.integer(element, "sequence"),
                           tuple(c.get("signalId", "") for c in self.children(element, "control")),
-                          dict(element.attrib), self.unknown(element, {"control"}))
+                          self.attrib(element), self.unknown(element, {"control"}))
 
     def check_links(self, roads: list[Road], junctions: list[Junction]) -> None:
         """Dangling links become warnings with the road id: the map still loads."""
