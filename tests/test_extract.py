@@ -248,3 +248,16 @@ def test_an_external_dtd_is_not_loaded_and_dropped_from_the_output(tmp_path):
     output = tmp_path / "out.osm"
     assert run("extract", hostile_osm(tmp_path, "external-dtd"), "-o", output).exit_code == 0
     assert "DOCTYPE" not in output.read_text()
+
+
+def test_a_node_with_a_non_numeric_coordinate_is_a_one_line_error(tmp_path):
+    source = tmp_path / "bad.osm"
+    source.write_text(
+        '<?xml version="1.0" encoding="UTF-8"?>\n<osm version="0.6">\n'
+        '  <node id="1" lat="53.55" lon="9.99"/>\n  <node id="2" lat="abc" lon="9.991"/>\n'
+        '  <way id="100"><nd ref="1"/><nd ref="2"/><tag k="highway" v="residential"/></way>\n</osm>\n')
+    result = run("extract", source, "-o", tmp_path / "out.osm")
+    assert result.exit_code == 2
+    assert one_line_error(result) == (f"Error: {source}: a node has an invalid location "
+                                      "(wrong format for coordinate: 'abc')")
+    assert not (tmp_path / "out.osm").exists()

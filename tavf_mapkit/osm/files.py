@@ -40,10 +40,15 @@ def require_readable(path: str | Path) -> Path:
 
 @contextmanager
 def osmium_errors(path: str | Path):
-    """Translate osmium's RuntimeErrors (XML, PBF, compression) into InputErrors naming the file and line."""
+    """Translate osmium's RuntimeErrors (XML, PBF, compression) and bad node coordinates into InputErrors naming
+    the file and line."""
+    import osmium
+
     name = str(path)
     try:
         yield
+    except osmium.InvalidLocationError as error:  # not a RuntimeError: a node's lat/lon is not a number
+        raise InputError(f"a node has an invalid location ({error})", file=name) from None
     except RuntimeError as error:
         raise _input_error(str(error), name) from None
 
