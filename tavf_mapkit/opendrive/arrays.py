@@ -115,6 +115,8 @@ class NetworkArrays:
         counts = np.array([len(road.reference_line) for road in roads], dtype=np.int64)
         rows = (np.concatenate([road.reference_line.rows for road in roads]) if roads
                 else np.zeros((0, GEOMETRY_COLUMNS)))
+        for road, start, end in zip(roads, np.cumsum(counts) - counts, np.cumsum(counts)):
+            road.reference_line.share_rows(rows[start:end])
         table = GeometryTable.from_rows(rows, np.repeat(np.arange(len(roads), dtype=np.int64), counts))
         section_road, section_s0, section_end = [], [], []
         lane_section, lane_id, lane_rank, lane_border_flag, lane_type, widths, borders = [], [], [], [], [], [], []

@@ -43,6 +43,16 @@ class ReferenceLine:
     def __reduce__(self):
         return ReferenceLine.from_rows, (self.rows, self.lines, self.extra_xml)
 
+    def share_rows(self, rows: np.ndarray) -> None:
+        """Keep ``rows`` (equal to this line's own, a view into a map's table) instead of a copy of them: a map's
+        NetworkArrays gathers every road's rows into one table, and both copies would otherwise stay alive."""
+        if rows.shape != self.rows.shape:
+            raise ValueError("shared rows must have the shape of the reference line's own")
+        rows = rows.view()
+        rows.flags.writeable = False
+        object.__setattr__(self, "rows", rows)
+        object.__setattr__(self, "_table", None)
+
     def __len__(self) -> int:
         return len(self.rows)
 
