@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tavf_mapkit.opendrive.locate import border_offsets
+from tavf_mapkit.opendrive.borders import border_offsets
 from tavf_mapkit.opendrive.sampling import sample_lanes
 
 

@@ -24,7 +24,7 @@ from tavf_mapkit.mesh.cleanup import face_cross, proper_faces
 from tavf_mapkit.mesh.evaluate import reference_frames
 from tavf_mapkit.mesh.exact import search_pairs
 from tavf_mapkit.mesh.labelled import KIND_CODE, LabelledMesh
-from tavf_mapkit.opendrive.locate import border_offsets
+from tavf_mapkit.opendrive.borders import border_offsets
 
 MARK_COLOURS = ("white", "yellow", "red", "blue", "green", "orange", "violet", "black")
 LIFT = 0.005             # m above the lane surface

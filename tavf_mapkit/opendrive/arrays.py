@@ -1,7 +1,7 @@
 """The whole map flattened into tables, so that sampling every lane of every road is a few numpy calls.
 
-Lookups across roads use a combined key ``group + s / span`` (group = road or lane row index, span > any s),
-so one searchsorted finds the governing record of every sample of every road at once.
+Lookups across roads use a combined key ``group + i*s`` (group = road or lane row index; complex numbers order
+lexicographically), so one exact searchsorted finds the governing record of every sample of every road at once.
 """
 
 from __future__ import annotations
@@ -27,9 +27,11 @@ class RecordTable:
 
     @property
     def keys(self) -> np.ndarray:
+        """group + i*s0: numpy orders complex numbers lexicographically, so the search is exact in s (a real key
+        group + s0/span would merge records closer than the key's resolution, as GeometryTable.locate notes)."""
         keys = self.__dict__.get("_keys")
         if keys is None:
-            keys = self.group + self.s0 / self.span
+            keys = self.group + 1j * self.s0
             object.__setattr__(self, "_keys", keys)
         return keys
 
@@ -59,7 +61,7 @@ class RecordTable:
         force (the limit from the left: the value at the end of the interval before s)."""
         if not len(self.s0):
             return np.zeros(len(s))
-        key = group + s / self.span
+        key = group + 1j * s
         index = np.searchsorted(self.keys, key, side="right") - 1
         if from_left is not None:
             before = np.searchsorted(self.keys, key, side="left") - 1

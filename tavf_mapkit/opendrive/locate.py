@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from tavf_mapkit.opendrive.borders import border_offsets
 from tavf_mapkit.opendrive.sampling import sample_lanes
 
 
@@ -22,24 +23,6 @@ class Location:
     s: np.ndarray
     t: np.ndarray
     distance: np.ndarray  # 0 inside the lane, else the lateral distance to it (m)
-
-
-def border_offsets(arrays, lane_row: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(t_inner, t_outer) of lane-table rows at s, walking out from the centre lane."""
-    lane_row = np.asarray(lane_row)
-    rank = arrays.lane_rank[lane_row]
-    t = arrays.section_lane_offset(arrays.lane_section[lane_row], s)
-    t_inner = t.copy()
-    sign = np.sign(arrays.lane_id[lane_row]).astype(float)
-    for r in range(int(rank.max(initial=-1)) + 1):
-        active = r <= rank
-        row = np.where(active, lane_row - rank + r, lane_row)
-        width = arrays.lane_width.evaluate(row, s)
-        border = arrays.lane_border.evaluate(row, s)
-        step = np.where(arrays.lane_uses_border[row], border, t + sign * width)
-        t_inner = np.where(active & (r == rank), t, t_inner)
-        t = np.where(active, step, t)
-    return t_inner, t
 
 
 class LaneLocator:

@@ -12,6 +12,7 @@ from functools import cached_property
 
 import numpy as np
 
+from tavf_mapkit.opendrive.borders import border_offsets
 from tavf_mapkit.opendrive.surface import surface_frame
 
 
@@ -154,19 +155,9 @@ def sample_lanes_at(odr, sample_section: np.ndarray, sample_s: np.ndarray) -> La
     within = np.arange(len(pair_lane)) - np.repeat(lane_pair_starts, lane_counts)
     pair_sample = starts[arrays.lane_section][pair_lane] + within
     s = sample_s[pair_sample]
-    width = arrays.lane_width.evaluate(pair_lane, s)
-    border = arrays.lane_border.evaluate(pair_lane, s)
-    sign = np.sign(arrays.lane_id[pair_lane]).astype(float)
-    uses_border = arrays.lane_uses_border[pair_lane]
-    rank = arrays.lane_rank[pair_lane]
-    t_inner = np.empty(len(pair_lane))
-    t_outer = np.empty(len(pair_lane))
     # lanes of one side are consecutive rows: the inner neighbour's pair is one section-sample count earlier
-    for r in range(int(rank.max(initial=-1)) + 1):
-        idx = np.flatnonzero(rank == r)
-        inner = lane_offset[pair_sample[idx]] if r == 0 else t_outer[idx - lane_counts[pair_lane[idx]]]
-        t_inner[idx] = inner
-        t_outer[idx] = np.where(uses_border[idx], border[idx], inner + sign[idx] * width[idx])
+    inner_pair = np.arange(len(pair_lane)) - lane_counts[pair_lane]
+    t_inner, t_outer = border_offsets(arrays, pair_lane, s, inner_pair)
     return LaneSampling(odr, sample_section, sample_s, x, y, z, heading, slope, superelevation, lane_offset,
                         pair_lane, pair_sample, t_inner, t_outer)
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from tavf_mapkit.opendrive.locate import border_offsets
+from tavf_mapkit.opendrive.borders import border_offsets
 
 MATCH_TOLERANCE_M = 0.6
 SAMPLE_STEP_M = 0.25  # chord error on a 5 m junction radius: 1.6 mm
