@@ -10,6 +10,7 @@ from pathlib import Path
 import click
 
 from tavf_mapkit.cli.options import area_from, bbox_option, json_option, polygon_option
+from tavf_mapkit.progress import progress_line
 
 
 @click.command(short_help="Build a simulation world from OSM, a SUMO network or OpenDRIVE.")
@@ -31,7 +32,8 @@ from tavf_mapkit.cli.options import area_from, bbox_option, json_option, polygon
               help="Keep netconvert's OpenDRIVE as written, for comparison ([opendrive] repair = false); only "
                    "geometry no build can use (vertices off Earth, absurd lengths) is still repaired.")
 @click.option("--force", is_flag=True, help="Rerun every stage even if its inputs and options are unchanged.")
-@click.option("-q", "--quiet", is_flag=True, help="No progress lines.")
+@click.option("-q", "--quiet", is_flag=True,
+              help="No progress lines (on a terminal, long stages otherwise show units done and time left).")
 @json_option
 def build(input_path: Path, pipeline_file: Path | None, bbox, polygon: Path | None, profile: str | None,
           crs: str | None, driving_side: str | None, output: Path | None, no_repair: bool, force: bool,
@@ -76,13 +78,27 @@ def build(input_path: Path, pipeline_file: Path | None, bbox, polygon: Path | No
     else:
         config = config.with_overrides(profile=profile, crs=crs, driving_side=side, repair=repair)
 
-    def progress(line: str) -> None:
-        if not quiet:
+    # on a terminal, long stages also show units done, elapsed and time left on one self-overwriting line;
+    # never with -q or --json, nor into a file or pipe (tavf_mapkit/progress.py)
+    live = progress_line(sys.stderr, quiet=quiet, as_json=as_json)
+
+    def notice(line: str) -> None:
+        if live is not None:
+            live.print(line)  # the live line makes room for it
+        else:
             click.echo(line, err=True)
 
+    def progress(line: str) -> None:
+        if not quiet:
+            notice(line)
+
     command = shlex.join(["mapkit", *sys.argv[1:]]) if sys.argv and sys.argv[0].endswith("mapkit") else None
-    result = run_build(input_path, config, output, force=force, progress=progress, command=command,
-                       notice=lambda line: click.echo(line, err=True))
+    try:
+        result = run_build(input_path, config, output, force=force, progress=progress, command=command,
+                           notice=notice, meter=live.task if live is not None else None)
+    finally:
+        if live is not None:
+            live.clear()  # an error or the summary starts on a clean line
     if as_json:
         click.echo(json.dumps(_json_summary(result), indent=2))
     else:

@@ -9,15 +9,18 @@ from pathlib import Path
 from tavf_mapkit.fileutil import staged_folder
 from tavf_mapkit.mesh.surface import DEFAULT_EPS
 from tavf_mapkit.mesh.tiled import BATCH_WORK, write_tiled_mesh
+from tavf_mapkit.progress import Progress
 
 DEFAULT_TILE = 100.0
 
 
 def write_mesh_folder(odr, folder: str | Path, eps: float = DEFAULT_EPS, fmt: str = "glb",
                       tile_size: float = DEFAULT_TILE, osm_path: Path | None = None, solids: bool = True,
-                      preview: bool = True, batch_work: float = BATCH_WORK) -> dict:
+                      preview: bool = True, batch_work: float = BATCH_WORK,
+                      progress: Progress | None = None) -> dict:
     """Mesh the map and write ``folder`` (tiles/, labelled/, mesh.json, preview.png); return mesh.json's content.
-    ``batch_work``: metres of lane meshed at once (memory grows with it; the files do not depend on it)."""
+    ``batch_work``: metres of lane meshed at once (memory grows with it; the files do not depend on it).
+    ``progress``: told of each pass's units done (``tavf_mapkit.progress``)."""
     extra = {}
     if odr.georeference is not None:
         from dataclasses import asdict
@@ -26,7 +29,7 @@ def write_mesh_folder(odr, folder: str | Path, eps: float = DEFAULT_EPS, fmt: st
         extra["georeference"] = {"proj": header.geo_reference,
                                  "offset": None if header.offset is None else asdict(header.offset)}
     return write_tiled_mesh(odr, folder, eps, fmt, tile_size, osm_path=osm_path, solids=solids, preview=preview,
-                            batch_work=batch_work, extra=extra)
+                            batch_work=batch_work, extra=extra, progress=progress)
 
 
 def replace_folder(target: Path, make) -> dict:

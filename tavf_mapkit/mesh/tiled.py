@@ -35,6 +35,7 @@ from tavf_mapkit.mesh.materials import mark_material
 from tavf_mapkit.mesh.spill import ChunkStore, Keyed, from_arrays, keyed_by_group, merge
 from tavf_mapkit.mesh.tiles import face_tiles, solid_tiles
 from tavf_mapkit.mesh.units import BLOCK
+from tavf_mapkit.progress import Progress, Report, reporter
 from tavf_mapkit.tilegrid import TileGrid, group_by_tile, origin_of_bounds, tile_name
 
 #: metres of lane per batch: memory of a batch grows with it (about 0.3 MB per km), time hardly at all
@@ -75,10 +76,12 @@ class _Tally:
 def write_tiled_mesh(odr, folder: str | Path, eps: float, fmt: str = "glb", tile_size: float = 100.0,
                      osm_path: Path | None = None, solids: bool = True, preview: bool = True,
                      exports: bool = True, batch_work: float = BATCH_WORK, extra: dict | None = None,
-                     origin=None) -> dict:
+                     origin=None, progress: Progress | None = None) -> dict:
     """Mesh the map into ``folder``: tiles/ and road marks (unless ``exports`` is off), labelled/ (surface and
     solids per tile, for the collision world), mesh.json and preview.png. Returns mesh.json's content.
-    ``origin``: the origin to use instead of the middle of the meshes' bounds (e.g. another stage's)."""
+    ``origin``: the origin to use instead of the middle of the meshes' bounds (e.g. another stage's).
+    ``progress`` hears of each pass: roads meshed, junction clusters curbed, building groups placed, tiles
+    written."""
     from tavf_mapkit.mesh.units import mesh_units
 
     check_export_options(fmt, tile_size)
@@ -96,16 +99,21 @@ def write_tiled_mesh(odr, folder: str | Path, eps: float, fmt: str = "glb", tile
     tally = _Tally()
     spill_grid = TileGrid.spill(float(tile_size))
     try:
+        roads_done, report = 0, reporter(progress, "roads")
         for batch in units.batches(spill_grid, batch_work):
-            _mesh_batch(odr, units, units.roads_of_units(batch), eps, spill_grid, stores, tally, solids, exports)
+            report(roads_done, len(odr.roads))
+            roads = units.roads_of_units(batch)
+            _mesh_batch(odr, units, roads, eps, spill_grid, stores, tally, solids, exports)
+            roads_done += len(roads)
+        report(roads_done, len(odr.roads))
         if solids:
             surface = _SurfaceTiles(stores["surface"], spill_grid, tally.reach)
-            _junction_curbs(odr, units, surface, stores, tally)
-            _buildings(odr, units, osm_path, surface, stores, tally)
+            _junction_curbs(odr, units, surface, stores, tally, reporter(progress, "junction clusters"))
+            _buildings(odr, units, osm_path, surface, stores, tally, reporter(progress, "building groups"))
         origin = origin_of_bounds(tally.low, tally.high) if origin is None else tuple(float(v) for v in origin)
         grid = TileGrid(origin, float(tile_size))
         summary = _write_tiles(odr, folder, fmt, grid, stores, tally, preview, exports, eps, osm_path, solids,
-                               extra or {})
+                               extra or {}, reporter(progress, "tiles"))
     finally:
         for store in stores.values():
             store.close()
@@ -287,7 +295,7 @@ class _SurfaceTiles:
         return bool(np.all(lo <= self.low) and np.all(hi >= self.high))
 
 
-def _junction_curbs(odr, units, surface: _SurfaceTiles, stores, tally: _Tally) -> None:
+def _junction_curbs(odr, units, surface: _SurfaceTiles, stores, tally: _Tally, report: Report) -> None:
     """Pass 2: the curbs of every junction cluster, from the surface around it; clusters in groups that share
     one sampling of the lanes around them (a cluster's curbs depend on its own surroundings only)."""
     from tavf_mapkit.mesh.solid_junction_curbs import (
@@ -305,8 +313,10 @@ def _junction_curbs(odr, units, surface: _SurfaceTiles, stores, tally: _Tally) -
         group = clusters[start:start + CLUSTER_GROUP]
         roads = np.unique(np.concatenate([units.roads_near(tally.cluster_box[u], ROAD_REACH) for u in group]))
         around = CurbSurroundings(odr, roads)
-        for unit in group:
+        for k, unit in enumerate(group):
+            report(start + k, len(clusters))
             _cluster_curbs(odr, units, unit, surface, around, junction_rank, stores, tally, CONTEXT_REACH)
+    report(len(clusters), len(clusters))
 
 
 def _cluster_curbs(odr, units, unit, surface, around, junction_rank, stores, tally, reach) -> None:
@@ -326,7 +336,7 @@ def _cluster_curbs(odr, units, unit, surface, around, junction_rank, stores, tal
     _spill_solids(made, stores, tally, surface.grid)
 
 
-def _buildings(odr, units, osm_path, surface: _SurfaceTiles, stores, tally: _Tally) -> None:
+def _buildings(odr, units, osm_path, surface: _SurfaceTiles, stores, tally: _Tally, report: Report) -> None:
     """Pass 3: OSM buildings, in groups by block of tiles, each cut where it stands on a drivable lane or in
     a driving lane's swept path and standing on the lowest of its nearest road-surface vertices."""
     from tavf_mapkit.mesh.kinds import DRIVABLE_KINDS
@@ -347,7 +357,9 @@ def _buildings(odr, units, osm_path, surface: _SurfaceTiles, stores, tally: _Tal
     drivable = [KIND_CODE[k] for k in DRIVABLE_KINDS]
     boxes = np.array([part[1].bounds for part in parts])
     block = TileGrid.spill(surface.size * BLOCK).tile_of_boxes(boxes[:, :2], boxes[:, 2:])
-    for _, members in sorted(group_by_tile(block[:, [1, 0]]).items()):
+    groups = sorted(group_by_tile(block[:, [1, 0]]).items())
+    for done, (_, members) in enumerate(groups):
+        report(done, len(groups))
         box = np.concatenate([boxes[members, :2].min(axis=0), boxes[members, 2:].max(axis=0)])
         # only drivable faces that reach into the group's box can cut a passage
         context = surface.square(*surface.cells(box, 0.0))
@@ -373,6 +385,7 @@ def _buildings(odr, units, osm_path, surface: _SurfaceTiles, stores, tally: _Tal
             except SolidError as error:
                 tally.skipped.append((key, f"{where}: {error}"))
         _spill_solids(made, stores, tally, surface.grid)
+    report(len(groups), len(groups))
 
 
 def _ground_heights(surface: _SurfaceTiles, points: np.ndarray) -> np.ndarray:
@@ -422,7 +435,7 @@ def _ground_heights(surface: _SurfaceTiles, points: np.ndarray) -> np.ndarray:
 # -- pass 4: the final grid ----------------------------------------------------------------------------------
 
 def _write_tiles(odr, folder: Path, fmt, grid: TileGrid, stores, tally: _Tally, preview: bool, exports: bool,
-                 eps: float, osm_path, solids: bool, extra: dict) -> dict:
+                 eps: float, osm_path, solids: bool, extra: dict, report: Report) -> dict:
     from tavf_mapkit.mesh.marks import MARK_COLOURS
     from tavf_mapkit.mesh.preview import PreviewCanvas, group_code
 
@@ -435,7 +448,8 @@ def _write_tiles(odr, folder: Path, fmt, grid: TileGrid, stores, tally: _Tally, 
     tile_entries, labelled, indices = [], [], []
     # block by block, so that the spill tiles around a block are read once; files and lists do not depend on it
     every = set().union(*(regrid.tiles() for regrid in layers_of.values()))
-    for index in sorted(every, key=lambda t: (t[1] // BLOCK, t[0] // BLOCK, t[1], t[0])):
+    for done, index in enumerate(sorted(every, key=lambda t: (t[1] // BLOCK, t[0] // BLOCK, t[1], t[0]))):
+        report(done, len(every))  # squares that may hold a piece: more than the tiles written
         layers = [(layer, merge(layers_of[name].parts(index)))
                   for layer, name in (("lanes", "surface"), ("marks", "marks"), ("solids", "solids"))]
         members = []
@@ -457,6 +471,7 @@ def _write_tiles(odr, folder: Path, fmt, grid: TileGrid, stores, tally: _Tally, 
         if layers[0][1] is not None or whole:
             labelled.append(_write_labelled(folder, index, layers[0][1], whole))
             indices.append([int(index[0]), int(index[1])])
+    report(len(every), len(every))
     tile_entries.sort(key=lambda entry: tuple(entry["index"]))
     order = sorted(range(len(indices)), key=lambda k: tuple(indices[k]))
     labelled, indices = [labelled[k] for k in order], [indices[k] for k in order]

@@ -45,6 +45,7 @@ from tavf_mapkit.opendrive.refline import ReferenceLine
 from tavf_mapkit.opendrive.repair import Repair
 from tavf_mapkit.opendrive.repair_lengths import TOLERANCE as LENGTH_TOLERANCE
 from tavf_mapkit.opendrive.repair_redundant import redundant_lines, repair_redundant
+from tavf_mapkit.progress import Progress, Report, no_report, reporter
 
 #: Repair.action of this repair: a curve replaced, and one kept (with why)
 CURVE_AS_ARCS = "curve as arcs"
@@ -67,9 +68,10 @@ _MARGIN = 0.9
 CURVED = (int(GeometryKind.PARAM_POLY3), int(GeometryKind.POLY3))
 
 
-def repair_curves(odr, tolerance: float = TOLERANCE, max_pieces: int = MAX_PIECES):
+def repair_curves(odr, tolerance: float = TOLERANCE, max_pieces: int = MAX_PIECES,
+                  progress: Progress | None = None):
     """(map with its paramPoly3 and poly3 as arcs and lines, repairs): one Repair per road whose curves became
-    arcs, one per curve kept (and why)."""
+    arcs, one per curve kept (and why). ``progress`` hears of the lane sections sampled and curves fitted."""
     from tavf_mapkit.opendrive.network import OpenDriveMap
 
     table = odr.arrays.geometries
@@ -91,12 +93,15 @@ def repair_curves(odr, tolerance: float = TOLERANCE, max_pieces: int = MAX_PIECE
     next_row = np.minimum(rows + 1, len(table) - 1)
     following = np.where(rows + 1 < ends[table.group[rows]], table.s[next_row], np.inf)
     used = np.minimum(table.length[rows], following - table.s[rows])
-    lever = _widest_offsets(odr, np.unique(table.group[rows]))
+    lever = _widest_offsets(odr, np.unique(table.group[rows]), report=reporter(progress, "lane sections"))
     widest = np.array([lever.get(int(g), 0.0) for g in table.group[rows]])
     fits = []  # in batches of curves: memory bounded by the batch, not the map (Maribor: 6 GB in one go)
+    report = reporter(progress, "curves")
     for first in range(0, len(rows), CURVES_PER_BATCH):
+        report(first, len(rows))
         batch = slice(first, first + CURVES_PER_BATCH)
         fits += fit_curves(table, rows[batch], used[batch], widest[batch], tolerance, max_pieces)
+    report(len(rows), len(rows))
 
     roads, repairs = list(odr.roads), []
     by_road: dict = {}
@@ -136,7 +141,7 @@ def repair_curves(odr, tolerance: float = TOLERANCE, max_pieces: int = MAX_PIECE
     return repaired, repairs
 
 
-def _widest_offsets(odr, road_indices: np.ndarray, step: float = 1.0) -> dict:
+def _widest_offsets(odr, road_indices: np.ndarray, step: float = 1.0, report: Report = no_report) -> dict:
     """Road index -> the largest |t| of any lane border of the road (sampled every ``step`` m and at section
     ends): how far from the reference line a heading error is felt."""
     from tavf_mapkit.opendrive.sampling import sample_lanes_at, section_samples
@@ -147,11 +152,13 @@ def _widest_offsets(odr, road_indices: np.ndarray, step: float = 1.0) -> dict:
         return {}
     widest = np.zeros(len(odr.roads))
     for first in range(0, len(all_sections), SECTIONS_PER_BATCH):  # whole-map samples would not fit in memory
+        report(first, len(all_sections))
         sections = all_sections[first:first + SECTIONS_PER_BATCH]
         sampling = sample_lanes_at(odr, *section_samples(arrays, step, True, sections))
         np.maximum.at(widest, arrays.section_road[sampling.sample_section], np.abs(sampling.lane_offset))
         if len(sampling.pair_lane):
             np.maximum.at(widest, sampling.road_index, np.abs(sampling.t_outer))
+    report(len(all_sections), len(all_sections))
     return {int(r): float(widest[r]) for r in road_indices}
 
 

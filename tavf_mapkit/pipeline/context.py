@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from tavf_mapkit.pipeline.config import PipelineConfig
+from tavf_mapkit.progress import Progress, silent
 
 
 @dataclass
@@ -15,6 +16,8 @@ class BuildContext:
 
     ``input_kind`` is "osm", "sumo-net" or "opendrive". ``facts`` maps a stage name to the facts it reported
     (also for stages reused from the previous build), so a later stage can read ``facts["extract"]["centre"]``.
+    ``progress`` is the running stage's: ``report = context.progress("tiles")``, then ``report(done, total)``
+    as tiles are finished (tavf_mapkit/progress.py; the command decides whether anyone sees it).
     """
 
     name: str
@@ -25,6 +28,7 @@ class BuildContext:
     artifacts: dict[str, Path] = field(default_factory=dict)
     facts: dict[str, dict] = field(default_factory=dict)
     notify: Callable[[str], None] = lambda message: None
+    progress: Progress = silent
 
     def section(self, name: str) -> dict:
         """The pipeline file's table ``[name]`` with command-line overrides applied."""

@@ -38,6 +38,7 @@ from tavf_mapkit.pipeline.manifest import (
     write_manifest,
 )
 from tavf_mapkit.pipeline.stages import get_stage, unavailable_modules
+from tavf_mapkit.progress import Progress, silent
 from tavf_mapkit.sumonet import SUMO_NET_SUFFIXES, is_sumo_net
 
 EXIT_CODES = {0: "ok", 1: "a stage failed", 2: "bad input or options", 130: "interrupted"}
@@ -78,11 +79,13 @@ def default_build_name(input_path: Path, config: PipelineConfig) -> str:
 
 def run_build(input_path: str | Path, config: PipelineConfig, output: str | Path | None = None, *,
               force: bool = False, progress: Callable[[str], None] | None = None,
-              command: str | None = None, notice: Callable[[str], None] | None = None) -> BuildResult:
+              command: str | None = None, notice: Callable[[str], None] | None = None,
+              meter: Callable[[str], Progress] | None = None) -> BuildResult:
     """Build ``input_path`` with ``config`` into ``output`` (default build/NAME); return the manifest.
 
     ``progress`` gets a line per stage; ``notice`` the lines a user must see even without progress (the
-    recovery from a killed build), by default also ``progress``."""
+    recovery from a killed build), by default also ``progress``. ``meter(label)`` gives the Progress of the
+    stage labelled "[4/7] mesh" while it runs (``ProgressLine.task``); without it stages report to nobody."""
     started = time.perf_counter()
     progress = progress or (lambda line: None)
     input_path = Path(input_path)
@@ -114,7 +117,7 @@ def run_build(input_path: str | Path, config: PipelineConfig, output: str | Path
         records = []
         for index, stage_name in enumerate(config.stages, 1):
             record = _run_stage(stage_name, context, hashes, previous, folder.target, progress,
-                                f"[{index}/{len(config.stages)}]")
+                                f"[{index}/{len(config.stages)}]", meter)
             records.append(record)
             # each stage loads the map anew: what this one freed must not stay resident under the next one's
             # peak (on Maribor the check stage started from 0.8 GB the mesh stage had freed)
@@ -127,7 +130,8 @@ def run_build(input_path: str | Path, config: PipelineConfig, output: str | Path
 
 
 def _run_stage(stage_name: str, context: BuildContext, hashes: dict, previous: dict | None, target: Path,
-               progress: Callable[[str], None], counter: str) -> dict:
+               progress: Callable[[str], None], counter: str,
+               meter: Callable[[str], Progress] | None = None) -> dict:
     stage = get_stage(stage_name)
     if stage is None:
         reason = unavailable_modules().get(stage_name)
@@ -154,7 +158,11 @@ def _run_stage(stage_name: str, context: BuildContext, hashes: dict, previous: d
         if old and old.get("fingerprint") == stage_fingerprint and _copy_outputs(old, target, context.folder):
             status, outputs, facts = "unchanged", old["outputs"], old.get("facts", {})
         else:
-            result = stage.run(context)
+            context.progress = meter(f"{counter} {stage_name}") if meter is not None else silent
+            try:
+                result = stage.run(context)
+            finally:
+                context.progress = silent
             status, facts = "ran", result.facts
             outputs = {}
             for artifact, relative in result.files.items():

@@ -22,6 +22,7 @@ from tavf_mapkit.fileutil import StagedFolder
 from tavf_mapkit.mesh.kinds import DRIVABLE_KINDS
 from tavf_mapkit.mesh.labelled import KIND_CODE, SURFACE_KINDS, LabelledMesh
 from tavf_mapkit.mesh.tiles import face_tiles, map_origin, solid_tiles
+from tavf_mapkit.progress import Progress, reporter
 from tavf_mapkit.tilegrid import TileGrid, group_by_tile
 from tavf_mapkit.world.objfile import obj_text
 from tavf_mapkit.world.parts import BodyPart, split_faces
@@ -93,9 +94,10 @@ def build_collision_world(odr, out_dir, eps: float = 0.05, osm_path: Path | None
         raise
 
 
-def build_collision_world_from_tiles(labelled: Path, out_dir) -> dict:
+def build_collision_world_from_tiles(labelled: Path, out_dir, progress: Progress | None = None) -> dict:
     """``build_collision_world`` from labelled tiles (``mesh.tiled``: mesh/labelled of a build), one tile at a
-    time: the memory of a tile, not of the map. The world takes their eps, grid, origin and georeference."""
+    time: the memory of a tile, not of the map. The world takes their eps, grid, origin and georeference.
+    ``progress`` hears of the tiles done."""
     from tavf_mapkit.mesh.tiled import read_labelled_index, read_labelled_tile
 
     index_json = read_labelled_index(labelled)
@@ -104,10 +106,14 @@ def build_collision_world_from_tiles(labelled: Path, out_dir) -> dict:
     grid = TileGrid(tuple(_origin(index_json["origin"])), tile)
     writer = _WorldWriter(out_dir, grid, eps, index_json["georeference"])
     try:
-        for name, index in sorted(zip(index_json["tiles"], map(tuple, index_json["indices"])),
-                                  key=lambda item: (item[1][1], item[1][0])):
+        report = reporter(progress, "tiles")
+        tiles = sorted(zip(index_json["tiles"], map(tuple, index_json["indices"])),
+                       key=lambda item: (item[1][1], item[1][0]))
+        for done, (name, index) in enumerate(tiles):
+            report(done, len(tiles))
             surface, scene = read_labelled_tile(Path(labelled) / f"{name}.npz")
             writer.add(index, tile_bodies(index, surface, scene.solids))
+        report(len(tiles), len(tiles))
         return writer.finish({**index_json["solid_counts"], "skipped": list(index_json["skipped"])})
     except BaseException:
         writer.abandon()

@@ -38,14 +38,16 @@ class CollisionStage(Stage):
         labelled = meshed.labelled(options["eps"], options["tile"], osm_path)
         if labelled is not None:
             # the mesh stage's labelled tiles: the world is cut from exactly the meshes it exported
-            world = build_collision_world_from_tiles(labelled, context.folder)
+            world = build_collision_world_from_tiles(labelled, context.folder, progress=context.progress)
         else:
             from tavf_mapkit.mesh.tiled import LABELLED, write_tiled_mesh
 
             with tempfile.TemporaryDirectory(prefix=".collision-mesh-", dir=context.folder) as scratch:
                 write_tiled_mesh(context.opendrive(), scratch, options["eps"], tile_size=options["tile"],
-                                 osm_path=osm_path, preview=False, exports=False, origin=meshed.origin())
-                world = build_collision_world_from_tiles(Path(scratch) / LABELLED, context.folder)
+                                 osm_path=osm_path, preview=False, exports=False, origin=meshed.origin(),
+                                 progress=context.progress)
+                world = build_collision_world_from_tiles(Path(scratch) / LABELLED, context.folder,
+                                                         progress=context.progress)
         totals = world["totals"]
         solids = world["solids"]
         if solids["skipped"]:

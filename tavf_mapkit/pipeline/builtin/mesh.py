@@ -39,7 +39,7 @@ class MeshStage(Stage):
         osm_path = context.osm_source()
         folder = context.output_path("mesh/mesh.json").parent
         summary = write_mesh_folder(odr, folder, options["eps"], options["format"], options["tile"],
-                                    osm_path=osm_path, solids=options["solids"])
+                                    osm_path=osm_path, solids=options["solids"], progress=context.progress)
         shutil.copyfile(folder / "preview.png", context.output_path("report/mesh_preview.png"))
         triangles = summary["triangles"]
         context.note(f"mesh: {triangles['lanes'] + triangles['junctions']} surface + {triangles['marks']} mark"

@@ -110,7 +110,8 @@ def _repair_steps(context: BuildContext) -> list:
         ]
         if curves_mode(context) == "arcs":
             # last, so that the connecting roads rebuilt above are among them
-            steps.append(repair_curves)  # paramPoly3 and poly3 as arcs and lines every reader evaluates exactly
+            # paramPoly3 and poly3 as arcs and lines every reader evaluates exactly
+            steps.append(lambda odr: repair_curves(odr, progress=context.progress))
     return steps
 
 
