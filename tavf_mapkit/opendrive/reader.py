@@ -46,6 +46,49 @@ def loads_opendrive(data: bytes | str, name: str = "<string>") -> OpenDriveMap:
     return _Reader(prepare_xml_bytes(data, name)).read()
 
 
+_PARAM_POLY3_NAMES = ("aU", "bU", "cU", "dU", "aV", "bV", "cV", "dV")
+
+
+def _plain_geometry_row(g) -> tuple | None:
+    """The row of a <geometry> in its common, flawless form -- one <line>, <arc> or <paramPoly3> child, every
+    number present and finite, a positive length -- or None, and the careful path (with its warnings and
+    one-line errors) reads it instead. Curves as arcs give city maps millions of these, so this is the hot path."""
+    if len(g) != 1:
+        return None
+    shape = g[0]
+    tag = shape.tag
+    attrib = g.attrib
+    try:
+        s, x, y, length = float(attrib["s"]), float(attrib["x"]), float(attrib["y"]), float(attrib["length"])
+        hdg = float(attrib.get("hdg", 0.0))
+        if tag == "line":
+            params = _NO_PARAMETERS
+            kind = _LINE
+        elif tag == "arc":
+            params = (float(shape.attrib["curvature"]),) + _NO_PARAMETERS[1:]
+            kind = _ARC
+        elif tag == "paramPoly3":
+            p_range = shape.get("pRange", "normalized")
+            if p_range not in ("normalized", "arcLength"):
+                return None
+            shape_attrib = shape.attrib
+            params = tuple(float(shape_attrib.get(name, 0.0)) for name in _PARAM_POLY3_NAMES) + (
+                1.0 if p_range == "normalized" else 0.0,)
+            kind = _PARAM_POLY3
+        else:
+            return None
+    except (KeyError, ValueError):
+        return None
+    total = s + x + y + hdg + length + sum(params)
+    if total - total != 0.0 or not length > 0.0:  # NaN or infinity somewhere, or a length to warn about
+        return None
+    return (s, x, y, hdg, length, kind) + params
+
+
+_NO_PARAMETERS = (0.0,) * 9
+_LINE, _ARC, _PARAM_POLY3 = int(GeometryKind.LINE), int(GeometryKind.ARC), int(GeometryKind.PARAM_POLY3)
+
+
 def _local(tag) -> str:
     if not isinstance(tag, str):
         return ""
@@ -316,7 +359,13 @@ class _Reader:
     def plan_view(self, element) -> ReferenceLine:
         # rows, not Geometry objects: a map's curves as arcs are millions of records (see refline.py)
         rows, lines, extra_xml = [], [], {}
+        line_offset = self.source.line_offset
         for g in self.children(element, "geometry"):
+            row = _plain_geometry_row(g)
+            if row is not None:
+                rows.append(row)
+                lines.append(g.sourceline + line_offset if g.sourceline else -1)
+                continue
             s = self.number(g, "s", required=True)
             x = self.number(g, "x", required=True)
             y = self.number(g, "y", required=True)
