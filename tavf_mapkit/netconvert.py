@@ -6,6 +6,10 @@ output goes to a log, warnings are counted by kind, and its first error becomes 
 
 Projection (docs/netconvert-profiles.md, "Projection"):
 - OSM input: ``--proj`` with a transverse Mercator centred on the extract (default), or ``--proj.utm``.
+  The extract's nodes can reach far beyond the roads netconvert imports (rivers, boundaries, a long cycleway:
+  Krems' roads lay up to 9.6 km from the extract's centre, where single-precision readers such as CARLA are
+  0.2-0.4 mm off); when the network's own centre lies far from the origin, netconvert runs once more with the
+  projection centred on the network (``centre_on_network``).
 - SUMO network input: netconvert ``-s`` ignores ``--proj`` for the coordinates and only rewrites the
   label (checked with netconvert 1.28: convBoundary and netOffset unchanged, projParameter replaced), so a
   re-projection goes through netconvert's plain-XML export in geographic coordinates and back
@@ -15,6 +19,7 @@ Projection (docs/netconvert-profiles.md, "Projection"):
 from __future__ import annotations
 
 import functools
+import math
 import os
 import re
 import shutil
@@ -39,6 +44,12 @@ _ALWAYS = ["--xml-validation=never", "--xml-validation.net=never", "--aggregate-
 # the network to (0, 0) is switched off: local (0, 0) is then +lat_0/+lon_0 and the OpenDRIVE needs no
 # <offset>, which CARLA ignores (it would misplace the map by the offset). SUMO's netOffset becomes 0.
 _AT_PROJECTION_ORIGIN = ["--offset.disable-normalization=true"]
+# netconvert runs again with the projection centred on the network when the network's centre lies more than
+# OFF_CENTRE_M from the origin and more than OFF_CENTRE_SHARE of the network's half-diagonal: single-precision
+# readers lose about 0.05 mm per km from the origin (CARLA's waypoints on Krems: median 0.17 mm with the
+# roads 2-10 km from it, 0.07 mm centred), so a nearer centre is not worth a second run.
+OFF_CENTRE_M = 1000.0
+OFF_CENTRE_SHARE = 0.25
 _QUOTED = re.compile(r"'[^']*'")
 _NUMBER = re.compile(r"(?<![A-Za-z_])-?\d+(?:\.\d+)?")
 _NUMBER_RUN = re.compile(r"#(?:[#,]*#)?")
@@ -277,6 +288,8 @@ def convert(source: Path, kind: str, net: Path, xodr: Path, log: Path, profile: 
             command = [str(binary), "--osm-files", str(source), *projection, *profile_arguments, *_ALWAYS,
                        *outputs]
             _run(command, log_file, conversion, source)
+            if crs == "tmerc":
+                centre_on_network(command, log_file, conversion, source)
         elif kind == "sumo-net":
             _convert_sumo_net(binary, source, crs, profile_arguments, clip_bbox, outputs, log_file,
                               conversion)
@@ -355,9 +368,43 @@ def _convert_sumo_net(binary: Path, source: Path, crs: str, profile_arguments: l
                 plain_inputs += [option, f"{prefix}.{suffix}.xml"]
         command = [str(binary), *plain_inputs, *projection, *clip, *profile_arguments, *_ALWAYS, *outputs]
         _run(command, log_file, conversion, source)
+        if crs == "tmerc":  # the nodes' centre is the network's, unless --bbox clipped it
+            centre_on_network(command, log_file, conversion, source)
     finally:
         shutil.rmtree(folder, ignore_errors=True)
     conversion.notes.append(f"re-projected the network from {location.proj!r} via plain XML in lon/lat")
+
+
+def centre_on_network(command: list[str], log_file, conversion: Conversion, source: Path) -> None:
+    """Run ``command`` (which passed ``--proj`` with a transverse Mercator at local (0, 0), no <offset>) once
+    more with the projection centred on the network it wrote, when the network's centre lies more than
+    OFF_CENTRE_M and more than OFF_CENTRE_SHARE of its half-diagonal from the origin.
+
+    A new projection centre, not a shift of the coordinates (+x_0/+y_0 or <offset>): CARLA 0.9.16 places local
+    (0, 0) at +lat_0/+lon_0 and ignores both, so its geolocation would be off by the shift. Centred anew, the
+    SUMO network and the OpenDRIVE file stay in one plane, for a map of any size. netconvert lays the same
+    network out again: the OSM nodes land where they were, and lane borders move by netconvert's own rounding
+    in the plane (Krems: a median 5 mm, as much as from moving the centre by 7 mm), not by the projections'
+    difference in scale (1e-6)."""
+    from tavf_mapkit.sumonet import read_location
+
+    location = read_location(conversion.cwd / conversion.net)
+    west, south, east, north = location.conv_boundary
+    if location.net_offset != (0.0, 0.0) or not (west <= east and south <= north):
+        return  # not at the projection's origin (or an empty network): nothing this can centre
+    off = math.hypot(0.5 * (west + east), 0.5 * (south + north))
+    if off <= max(OFF_CENTRE_M, OFF_CENTRE_SHARE * 0.5 * math.hypot(east - west, north - south)):
+        return
+    centre = location.centre_wgs84()
+    if centre is None:
+        return
+    at = command.index("--proj") + 1
+    centred = tmerc_centred_on(*centre)
+    conversion.messages = Messages()  # the first run's output is replaced, and its messages with it
+    _run([*command[:at], centred, *command[at + 1:]], log_file, conversion, source)
+    conversion.projection = centred
+    conversion.notes.append(f"centred the projection on the road network (lon {centre[0]}, lat {centre[1]}): "
+                            f"its centre lay {off:.0f} m from the origin of {command[at]!r}")
 
 
 def _run(command: list[str], log_file, conversion: Conversion, source: Path) -> None:

@@ -183,13 +183,95 @@ def test_offset_is_the_negated_net_offset_and_projected_is_local_plus_offset(crs
         assert np.median(wrong) > 300
 
 
-@pytest.mark.parametrize("name", ["berlin-siegessaeule.osm.gz", "krautsand.osm.gz"])
-def test_small_real_osm_files_convert_with_a_usable_georeference(name, shared, tmp_path):
+def junctions_off_their_osm_nodes(net: Path, osm: Path) -> np.ndarray:
+    """Metres between each junction that is an OSM node (same id) and that node, the junction placed on Earth
+    by the network's own projParameter: where the georeference puts the network, whatever its plane."""
+    root = etree.parse(str(net)).getroot()
+    to_wgs84 = pyproj.Transformer.from_crs(root.find("location").get("projParameter"), "EPSG:4326",
+                                           always_xy=True)
+    nodes = {n.get("id"): (float(n.get("lon")), float(n.get("lat"))) for n in etree.parse(str(osm)).iter("node")}
+    junctions = [j for j in root.iter("junction") if j.get("id") in nodes and j.get("type") != "internal"]
+    lon, lat = to_wgs84.transform([float(j.get("x")) for j in junctions], [float(j.get("y")) for j in junctions])
+    osm_lon, osm_lat = np.array([nodes[j.get("id")] for j in junctions]).T
+    return pyproj.Geod(ellps="WGS84").inv(lon, lat, osm_lon, osm_lat)[2]
+
+
+def network_centre(net: Path) -> tuple[float, float, float]:
+    """(x, y) of the middle of the network's convBoundary and its half-diagonal (m)."""
+    west, south, east, north = read_location(net).conv_boundary
+    return 0.5 * (west + east), 0.5 * (south + north), 0.5 * float(np.hypot(east - west, north - south))
+
+
+@pytest.mark.parametrize("name, centred", [("berlin-siegessaeule.osm.gz", False), ("krautsand.osm.gz", True)])
+def test_small_real_osm_files_convert_with_a_usable_georeference(name, centred, shared, tmp_path):
+    """Berlin's roads lie around the middle of its extract (476 m off, within OFF_CENTRE_M: one run);
+    Krautsand's extract reaches 2.6 km beyond its roads, so the projection is centred on the network."""
     conversion, centre = convert_osm(shared("osm_small", name), tmp_path)
     georeference = assert_georeference_usable(tmp_path / "out.xodr")
     parameters = proj_parameters(georeference["proj"])
-    assert (float(parameters["lon_0"]), float(parameters["lat_0"])) == centre
+    assert ((float(parameters["lon_0"]), float(parameters["lat_0"])) == centre) is not centred
+    assert len(conversion.commands) == 1 + centred
+    x, y, half = network_centre(tmp_path / "out.net.xml")
+    if centred:
+        assert np.hypot(x, y) < 0.01 * half, (x, y)
+        assert georeference["proj"] == conversion.projection != tmerc_centred_on(*centre)
+        assert "centred the projection on the road network" in conversion.notes[0]
+    # netconvert writes the net's coordinates with 2 decimals: each junction on an OSM node within 1 cm of it
+    assert junctions_off_their_osm_nodes(tmp_path / "out.net.xml", tmp_path / "in.osm").max() < 0.01
     assert conversion.messages.errors == []
+
+
+def _with_a_far_river(source: Path, target: Path) -> Path:
+    """``source`` plus a river 3.5-5.5 km east of it: nodes of a way the profiles do not import."""
+    nodes = ('  <node id="-9001" version="1" lat="53.556" lon="10.03"/>\n'
+             '  <node id="-9002" version="1" lat="53.557" lon="10.06"/>\n')
+    way = '  <way id="-9100" version="1"><nd ref="-9001"/><nd ref="-9002"/><tag k="waterway" v="river"/></way>\n'
+    text = source.read_text(encoding="utf-8")
+    first_way = text.index("  <way ")  # OSM order: nodes, then ways
+    target.write_text(text[:first_way] + nodes + text[first_way:].replace("</osm>", way + "</osm>"),
+                      encoding="utf-8")
+    return target
+
+
+def test_nodes_beyond_the_roads_do_not_move_the_origin_off_the_network(tmp_path):
+    """The extract's centre lies 2.7 km east of the sample's roads once a river is added; netconvert runs again
+    with the projection centred on the network, which lands where the plain sample's does: its projection
+    centre within 1e-6 degrees, its junctions on their OSM nodes, the same roads and lanes."""
+    plain, far = tmp_path / "plain", tmp_path / "far"
+    plain.mkdir(), far.mkdir()
+    plain_conversion, plain_centre = convert_osm(SAMPLE, plain)
+    conversion, centre = convert_osm(_with_a_far_river(SAMPLE, tmp_path / "far.osm"), far)
+    assert centre[0] - plain_centre[0] > 0.03  # the river drew the extract's centre east
+    assert len(plain_conversion.commands) == 1 and len(conversion.commands) == 2
+    assert f"its centre lay 2667 m from the origin of {tmerc_centred_on(*centre)!r}" in conversion.notes[0]
+    parameters = proj_parameters(read_xodr_georeference(far / "out.xodr")["proj"])
+    assert abs(float(parameters["lon_0"]) - plain_centre[0]) < 1e-6
+    assert abs(float(parameters["lat_0"]) - plain_centre[1]) < 1e-6
+    x, y, _ = network_centre(far / "out.net.xml")
+    assert np.hypot(x, y) < 0.05
+    assert junctions_off_their_osm_nodes(far / "out.net.xml", far / "in.osm").max() < 0.01
+
+    def lanes(folder):
+        root = etree.parse(str(folder / "out.xodr")).getroot()
+        return sorted((road.get("id"), len(road.findall(".//lane"))) for road in root.iter("road"))
+
+    assert lanes(far) == lanes(plain)
+    # the river's one warning, counted once: the messages are the second run's (the first run's output is gone)
+    assert conversion.messages.warnings == {"Discarding unusable type '%' (first occurrence for edge '%').": 1}
+    log = (far / "netconvert.log").read_text()
+    assert log.count("$ ") == 2 and log.count("# exit code 0") == 2
+
+
+@pytest.mark.slow
+def test_krems_is_centred_on_its_roads_not_on_the_river_and_cycleway_of_its_extract(shared, tmp_path):
+    """The zoo's Krems file reaches 15.86 E along the Danube and a cycleway netconvert does not import; centred
+    on the extract, its roads lay 0.1-9.6 km west of the origin (CARLA's waypoints 0.17 mm off, median)."""
+    conversion, centre = convert_osm(shared("zoo", "osm", "AT_krems.osm.gz"), tmp_path)
+    assert centre == (15.7057357, 48.4071206)
+    assert conversion.projection == tmerc_centred_on(15.6401974, 48.4068328)
+    x, y, half = network_centre(tmp_path / "out.net.xml")
+    assert np.hypot(x, y) < 0.001 * half and half > 5000
+    assert junctions_off_their_osm_nodes(tmp_path / "out.net.xml", tmp_path / "in.osm").max() < 0.01
 
 
 def test_jungfernstieg_converts_with_a_usable_georeference(shared, tmp_path):

@@ -13,7 +13,9 @@ from tavf_mapkit.pipeline.stages import Stage, StageOutput, register_stage
 class NetconvertStage(Stage):
     inputs = ("source",)
     input_kinds = ("osm", "sumo-net")
-    version = "3"  # 2: local (0, 0) at the projection origin (no <offset>); 3: driving side (--lefthand)
+    # 2: local (0, 0) at the projection origin (no <offset>); 3: driving side (--lefthand); 4: the projection
+    # centred on the road network when the extract's centre lies far from it
+    version = "4"
     description = "SUMO netconvert: road network and OpenDRIVE"
 
     def options(self, context: BuildContext) -> dict:
