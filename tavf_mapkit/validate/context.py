@@ -31,7 +31,12 @@ class RoadEnds:
 
 
 class ValidationContext:
-    """``root``/``line_offset``: the parsed document (None for an already loaded map); ``odr``: the map or None."""
+    """``root``/``line_offset``: the parsed document (None for an already loaded map); ``odr``: the map or None.
+
+    A file's document is read in parts (validate/document.py): then ``root`` holds the top-level elements of the
+    current ``part`` only, ``part.outline`` what is known of the whole document, and ``source`` the file's bytes.
+    Structure rules run once per part; what they can only say of the whole document they say on the last part.
+    """
 
     def __init__(self, name: str, odr=None, root=None, line_offset: int = 0, schema_dir=None):
         self.name = name
@@ -39,6 +44,8 @@ class ValidationContext:
         self.root = root
         self.line_offset = line_offset
         self.schema_dir = schema_dir
+        self.part = None  # the DocumentPart ``root`` belongs to
+        self.source = None  # the XmlSource of the document, while its parts are checked
         self.notes: dict = {}  # facts for the report summary (e.g. which schema was used)
 
     def line(self, element) -> int | None:

@@ -21,9 +21,12 @@ _GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(16)
 ARC_LENGTH_CHUNK = 20_000  # curves per pass where each needs an arc-length table (bounded memory)
 
 
-def _flat_geometries(odr):
-    """(road, geometry) pairs in NetworkArrays' geometry-table order."""
-    return [(road, geometry) for road in odr.roads for geometry in road.reference_line.geometries]
+def _geometry_of_row(odr, table, row) -> tuple:
+    """(road, geometry) of a row of the map's geometry table, whose rows are the roads' geometries road by road.
+    Looked up per finding: a list of every (road, geometry) of the map would take the map's size again."""
+    road_index = int(table.group[row])
+    road = odr.roads[road_index]
+    return road, road.reference_line.geometries[int(row) - int(np.searchsorted(table.group, road_index))]
 
 
 def _joints(ctx):
@@ -47,11 +50,10 @@ def _joints(ctx):
 def gap(ctx, rule):
     table, first, x, y, _ = _joints(ctx)
     distance = np.hypot(table.x[first + 1] - x, table.y[first + 1] - y)
-    geometries = _flat_geometries(ctx.odr)
     gaps = np.flatnonzero(distance > rule.tolerance)
     short = _param_poly3_shortfall(table, first[gaps])
     for k, missing in zip(gaps, short):
-        road, geometry = geometries[first[k] + 1]
+        road, geometry = _geometry_of_row(ctx.odr, table, first[k] + 1)
         why = (f" (the paramPoly3 before it is {missing:.4g} m longer than its @length, and s is arc length)"
                if missing > rule.tolerance else "")
         yield Hit(f"geometry at s={geometry.s:g} starts {distance[k]:.4g} m from where the previous one ends{why}",
@@ -73,9 +75,8 @@ def _param_poly3_shortfall(table, rows: np.ndarray) -> np.ndarray:
 def kink(ctx, rule):
     table, first, _, _, heading = _joints(ctx)
     difference = np.degrees(np.abs(angle_difference(table.hdg[first + 1], heading)))
-    geometries = _flat_geometries(ctx.odr)
     for k in np.flatnonzero(difference > rule.tolerance):
-        road, geometry = geometries[first[k] + 1]
+        road, geometry = _geometry_of_row(ctx.odr, table, first[k] + 1)
         yield Hit(f"heading changes by {difference[k]:.3g} deg where the geometry at s={geometry.s:g} begins",
                   road=road.id, s=geometry.s, line=geometry.line)
 
@@ -137,9 +138,8 @@ def param_poly3_length(ctx, rule):
         return
     true_length = param_poly3_arc_lengths(table, rows)
     difference = true_length - table.length[rows]
-    geometries = _flat_geometries(ctx.odr)
     for k in np.flatnonzero(np.abs(difference) > rule.tolerance):
-        road, geometry = geometries[rows[k]]
+        road, geometry = _geometry_of_row(ctx.odr, table, rows[k])
         effect = (f"s ends {difference[k]:.4g} m before the curve does, a gap at its end" if difference[k] > 0 else
                   f"s runs {-difference[k]:.4g} m past the curve's end, where the reference line stands still")
         yield Hit(f"paramPoly3 at s={geometry.s:g} is {true_length[k]:.6g} m long, @length says "

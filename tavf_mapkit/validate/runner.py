@@ -7,22 +7,14 @@ from pathlib import Path
 from tavf_mapkit.errors import InputError, MapkitError
 from tavf_mapkit.memory import return_freed_memory
 from tavf_mapkit.validate.context import ValidationContext
+from tavf_mapkit.validate.document import document_parts
 from tavf_mapkit.validate.finding import ERROR, WARNING, Finding
 from tavf_mapkit.validate.registry import select_rules
 from tavf_mapkit.validate.report import ValidationReport
-from tavf_mapkit.xmlsafe import parse_safe, read_xml_source
+from tavf_mapkit.xmlsafe import read_xml_source
 
 #: structure rules that report what the reader made of the document, so they run after the map is loaded
 AFTER_LOAD = frozenset({"structure.readable"})
-
-
-def _strip_namespace(root) -> None:
-    """OpenDRIVE has no namespace; some writers add one anyway. Plain tags keep the rules simple."""
-    if not isinstance(root.tag, str) or root.tag[0] != "{":
-        return
-    for node in root.iter():
-        if isinstance(node.tag, str) and node.tag[0] == "{":
-            node.tag = node.tag.rsplit("}", 1)[-1]
 
 
 def validate_file(path: str | Path, rules=None, strict: bool = False,
@@ -40,25 +32,34 @@ def validate_and_load(path: str | Path, rules=None, strict: bool = False, schema
                       odr=None):
     """``validate_file``, and the map it read: (report, OpenDriveMap or None, the reader's InputError or None).
 
-    The document tree and the map are never held at once (for a large map each is about a gigabyte): the
-    structure rules run on the tree, the tree is let go, then the map is loaded (unless given) for the rules
-    that need it. ``structure.readable`` reports the reader's verdict, so it runs after the load.
+    The structure rules see the document in parts (validate/document.py: a whole lxml tree is about ten times the
+    file), never together with the map: then the file's bytes are let go and the map is loaded (unless given) for
+    the rules that need it. ``structure.readable`` reports the reader's verdict, so it runs after the load.
     """
     from tavf_mapkit.opendrive import load_opendrive
 
     source = read_xml_source(path)
-    context = ValidationContext(str(path), None, parse_safe(source), source.line_offset, schema_dir)
-    del source  # the context holds the only reference to the document tree, so it can be let go
-    _strip_namespace(context.root)
-    header = context.root.find("header")
-    version = None if header is None else f"{header.get('revMajor', '?')}.{header.get('revMinor', '?')}"
-    del header
-    rules = list(select_rules(rules))
+    context = ValidationContext(str(path), None, None, source.line_offset, schema_dir)
+    try:
+        rules = list(select_rules(rules))
+    except ValueError:
+        for _part in document_parts(source):  # a file that is not XML is reported first, as it always was
+            pass
+        raise
     available = {rule.id: True if rule.needs == "xml" else None for rule in rules}
-    found = {rule.id: _check(context, rule, strict) for rule in rules
-             if rule.needs == "xml" and rule.id not in AFTER_LOAD}
-    context.root = None
-    return_freed_memory()  # the tree's memory is not reused by the map's objects unless it goes back first
+    document_rules = [rule for rule in rules if rule.needs == "xml" and rule.id not in AFTER_LOAD]
+    found = {rule.id: [] for rule in document_rules}
+    context.source = source
+    del source  # the context holds the only reference to the file's bytes, so they can be let go
+    for part in document_parts(context.source):
+        context.root, context.part = part.root, part
+        for rule in document_rules:
+            found[rule.id] += _check(context, rule, strict)
+        context.root = None
+    header = part.outline.header
+    version = None if header is None else f"{header.get('revMajor', '?')}.{header.get('revMinor', '?')}"
+    context.part = context.source = part = header = None
+    return_freed_memory()  # the document's memory is not reused by the map's objects unless it goes back first
     error = None
     try:
         context.odr = load_opendrive(path) if odr is None else odr

@@ -59,7 +59,11 @@ def load_schema(path: Path) -> etree.XMLSchema:
 
 
 def schema_hits(ctx):
-    header = ctx.root.find("header")
+    """On the document's last part: the schema's violations (the XSD validator needs the whole document tree,
+    about ten times the file, so it is built only when a schema is at hand, and let go right after)."""
+    if not ctx.part.last:
+        return
+    header = ctx.part.outline.header
     raw = header.get("revMinor", "") if header is not None else ""
     version = f"1.{raw.strip()}" if raw.strip().isdigit() else "unknown"
     path = find_schema(int(raw), ctx.schema_dir) if raw.strip().isdigit() else None
@@ -71,10 +75,23 @@ def schema_hits(ctx):
     except etree.XMLSchemaParseError as error:
         ctx.notes["schema"] = {"version": version, "status": f"unusable: {str(error)[:120]}", "path": str(path)}
         return
-    valid = schema.validate(ctx.root)
+    valid, errors = _validate_document(schema, ctx.source)
     ctx.notes["schema"] = {"version": version, "status": "valid" if valid else "invalid", "path": str(path)}
-    errors = list(schema.error_log)
     for error in errors[:MAX_HITS]:
         yield Hit(f"schema {version}: {error.message}", line=error.line + ctx.line_offset if error.line else None)
     if len(errors) > MAX_HITS:
         yield Hit(f"schema {version}: {len(errors) - MAX_HITS} more violations not listed")
+
+
+def _validate_document(schema: etree.XMLSchema, source) -> tuple[bool, list]:
+    """(valid, the error log's entries) of the whole document, namespaces stripped as the other rules see them.
+    libxml2's streaming validation (a parser with a schema) words and places violations differently (line 0), so
+    the tree is built for it."""
+    from tavf_mapkit.validate.document import strip_namespace
+    from tavf_mapkit.xmlsafe import parse_safe
+
+    root = parse_safe(source)
+    if isinstance(root.tag, str) and root.tag[0] == "{":
+        strip_namespace(root)
+    valid = schema.validate(root)
+    return valid, list(schema.error_log)

@@ -1,8 +1,13 @@
 """Structure rules: the raw document -- root, header, version, required elements and attributes, numbers,
-ascending s, element names. They need the XML itself (line numbers, order, spelling), not the loaded map."""
+ascending s, element names. They need the XML itself (line numbers, order, spelling), not the loaded map.
+
+They see the document in parts (validate/document.py): ``ctx.root`` holds the current part's top-level elements,
+``ctx.part.outline`` the root, headers and first element of the whole document. A rule runs once per part; what it
+can only say of the whole document it says on the last part (``ctx.part.last``)."""
 
 from __future__ import annotations
 
+import itertools
 import math
 from functools import cache
 
@@ -102,21 +107,25 @@ def readable(ctx, rule):
       summary="The root element is <OpenDRIVE>.",
       why="Every OpenDRIVE consumer starts from this element; anything else is not an OpenDRIVE file.")
 def root_element(ctx, rule):
-    if ctx.root.tag != "OpenDRIVE":
-        yield Hit(f"root element is <{ctx.root.tag}>, expected <OpenDRIVE>", line=ctx.line(ctx.root))
+    root = ctx.part.outline.root
+    if ctx.part.last and root.tag != "OpenDRIVE":
+        yield Hit(f"root element is <{root.tag}>, expected <OpenDRIVE>", line=ctx.line(root))
 
 
 @rule("structure.header", ERROR, needs="xml",
       summary="Exactly one <header>, the first child of <OpenDRIVE>, with integer @revMajor and @revMinor.",
       why="The header carries the version (which rules apply) and the georeference (where the map lies).")
 def header(ctx, rule):
-    headers = ctx.root.findall("header")
+    if not ctx.part.last:
+        return
+    outline = ctx.part.outline
+    headers = outline.headers
     if not headers:
-        yield Hit("no <header>", line=ctx.line(ctx.root))
+        yield Hit("no <header>", line=ctx.line(outline.root))
         return
     for extra in headers[1:]:
         yield Hit("more than one <header>", line=ctx.line(extra))
-    first = next((child for child in ctx.root if isinstance(child.tag, str)), None)
+    first = outline.first
     if first is not headers[0]:
         yield Hit(f"<header> must be the first child of <OpenDRIVE>, found <{first.tag}> first", line=ctx.line(first))
     for name in ("revMajor", "revMinor"):
@@ -131,7 +140,7 @@ def header(ctx, rule):
       summary="The version is OpenDRIVE 1.4 to 1.8 (revMajor 1, revMinor 4..8).",
       why="The rules, the schema and the reader cover 1.4-1.8; other versions are checked as if they were 1.4-1.8.")
 def version(ctx, rule):
-    header = ctx.root.find("header")
+    header = ctx.part.outline.header if ctx.part.last else None
     if header is None:
         return
     major, minor = header.get("revMajor", ""), header.get("revMinor", "")
@@ -147,10 +156,9 @@ def version(ctx, rule):
               "sections; the document has at least one road.",
       why="Without them a road has no position or no drivable surface; readers skip or invent what is missing.")
 def required_elements(ctx, rule):
-    roads = ctx.root.findall("road")
-    if not roads:
-        yield Hit("the document has no <road>", line=ctx.line(ctx.root))
-    for road in roads:
+    if ctx.part.last and not ctx.part.outline.roads:
+        yield Hit("the document has no <road>", line=ctx.line(ctx.part.outline.root))
+    for road in ctx.root.iterfind("road"):
         road_id, line = road.get("id"), ctx.line(road)
         geometries = road.findall("planView/geometry")
         if not geometries:
@@ -186,24 +194,38 @@ def _bad_number(raw: str, nonnegative: bool) -> str | None:
 
 
 def _attribute_problems(ctx):
-    """(required-attribute hits, number hits). XPath in libxml2 finds the elements of each path once; all values of
-    one attribute are converted in one numpy call, and only a failing attribute is searched for its culprits."""
-    cache = ctx.notes.setdefault("_attribute_problems", {})
-    if "value" in cache:
-        return cache["value"]
+    """(required-attribute hits, number hits) of the whole document on the last part, else nothing yet. XPath in
+    libxml2 finds the elements of each path in a part once; all values of one attribute are converted in one numpy
+    call, and only a failing attribute is searched for its culprits. Hits are ordered as one pass over the whole
+    document would order them: by path, attribute, then document order (part, place in the part)."""
+    cache = ctx.notes.setdefault("_attribute_problems", {"part": None, "missing": [], "number": []})
+    part = ctx.part.index
+    if cache["part"] != part:
+        cache["part"] = part
+        _attribute_problems_of_part(ctx, part, cache["missing"], cache["number"])
+    if not ctx.part.last:
+        return [], []
+    return [hit for _, hit in sorted(cache["missing"], key=lambda item: item[0])], \
+        [hit for _, hit in sorted(cache["number"], key=lambda item: item[0])]
+
+
+def _attribute_problems_of_part(ctx, part: int, missing_hits: list, number_hits: list) -> None:
+    """Append (order key, hit) of the current part's missing attributes and bad numbers."""
     root = ctx.root
-    missing_hits, number_hits = [], []
-    for path, (required, numeric, nonnegative) in ELEMENTS.items():
+    for p, (path, (required, numeric, nonnegative)) in enumerate(ELEMENTS.items()):
         elements = _xpath(path)(root)
         if not elements:
             continue
-        for name in required:
-            for element in (e for e in elements if e.get(name) is None):
+        for i, name in enumerate(required):
+            for k, element in enumerate(elements):
+                if element.get(name) is not None:
+                    continue
                 missing = [m for m in required if element.get(m) is None]
                 if missing[0] == name:  # report each element once, naming everything it lacks
-                    missing_hits.append(Hit(f"<{element.tag}> lacks required " + ", ".join(f"@{m}" for m in missing),
-                                            road=_road_of(element), line=ctx.line(element)))
-        for name in numeric:
+                    missing_hits.append(((p, i, part, k), Hit(
+                        f"<{element.tag}> lacks required " + ", ".join(f"@{m}" for m in missing),
+                        road=_road_of(element), line=ctx.line(element))))
+        for i, name in enumerate(numeric):
             values = [value for value in (e.get(name) for e in elements) if value is not None]
             if not values:
                 continue
@@ -214,17 +236,16 @@ def _attribute_problems(ctx):
                 fine = False
             if fine:
                 continue
-            for element in elements:
+            for k, element in enumerate(elements):
                 raw = element.get(name)
                 problem = _bad_number(raw, name in nonnegative) if raw is not None else None
                 if problem:
-                    number_hits.append(Hit(f"<{element.tag}> @{name}={raw!r} {problem}", road=_road_of(element),
-                                           line=ctx.line(element)))
-    for element in _xpath("junction/connection[not(@connectingRoad) and not(@linkedRoad)]")(root):
+                    number_hits.append(((p, i, part, k), Hit(f"<{element.tag}> @{name}={raw!r} {problem}",
+                                                             road=_road_of(element), line=ctx.line(element))))
+    after = len(ELEMENTS)  # these come after every path's, as in one pass
+    for k, element in enumerate(_xpath("junction/connection[not(@connectingRoad) and not(@linkedRoad)]")(root)):
         name = "linkedRoad" if element.getparent().get("type") == "direct" else "connectingRoad"
-        missing_hits.append(Hit(f"<connection> lacks required @{name}", line=ctx.line(element)))
-    cache["value"] = (missing_hits, number_hits)
-    return cache["value"]
+        missing_hits.append(((after, 0, part, k), Hit(f"<connection> lacks required @{name}", line=ctx.line(element))))
 
 
 @rule("structure.required-attribute", ERROR, needs="xml",
@@ -283,7 +304,11 @@ def s_order(ctx, rule):
       summary="Every element name is one ASAM OpenDRIVE 1.1-1.8 defines (children of <userData> are free).",
       why="A misspelt element (e.g. <geomtry>) is ignored by every reader: the data it carries is lost silently.")
 def unknown_elements(ctx, rule):
-    for element in ctx.root.iter():
+    # the root once, before its first part (document order); ctx.root only stands for it
+    elements = ctx.root.iterdescendants()
+    if ctx.part.index == 0:
+        elements = itertools.chain((ctx.part.outline.root,), elements)
+    for element in elements:
         tag = element.tag
         if not isinstance(tag, str) or tag in KNOWN_ELEMENTS:
             continue

@@ -12,6 +12,8 @@ from tavf_mapkit.validate.finding import ERROR, INFO, WARNING, Hit
 from tavf_mapkit.validate.registry import rule
 
 _CONTACTS = ("start", "end")
+#: lane sections sampled at once for the borders at road ends (as the opendrive stage's curve repair batches)
+SECTIONS_PER_BATCH = 2000
 
 
 def _links(road):
@@ -191,34 +193,39 @@ def _contacts(ctx):
 
 
 def _end_border_table(ctx) -> dict:
-    """(road id, end) -> {lane id: (inner xy, outer xy)} at both ends of every road, in one vectorised pass.
+    """(road id, end) -> {lane id: (inner xy, outer xy)} at both ends of every road, vectorised over
+    SECTIONS_PER_BATCH lane sections at a time (memory bounded by the batch, not the map).
 
     A sampling step longer than any road yields exactly the start and end of every lane section.
     """
     cache = ctx.notes.setdefault("_end_borders", {})
     if "value" in cache:
         return cache["value"]
-    from tavf_mapkit.opendrive.sampling import sample_lanes
+    from tavf_mapkit.opendrive.sampling import sample_lanes_at, section_samples
 
     odr = ctx.odr
     arrays = odr.arrays
     table: dict = {}
     if len(arrays.lane_id):
-        sampling = sample_lanes(odr, step=float(arrays.road_length.max(initial=0.0)) + 1e6)
-        inner = sampling.points_at(sampling.t_inner)[:, :2]
-        outer = sampling.points_at(sampling.t_outer)[:, :2]
-        section = sampling.section_index
-        road_index = arrays.section_road[section]
+        step = float(arrays.road_length.max(initial=0.0)) + 1e6
         first_section = np.r_[True, arrays.section_road[1:] != arrays.section_road[:-1]]
         last_section = np.r_[arrays.section_road[1:] != arrays.section_road[:-1], True]
-        s, s0, end = sampling.s, arrays.section_s0[section], arrays.section_end[section]
-        at_start = first_section[section] & (s == s0)
-        at_end = last_section[section] & (s == end)
-        roads, lane_id = odr.roads, sampling.lane_id
-        for mask, side in ((at_start, "start"), (at_end, "end")):
-            for k in np.flatnonzero(mask):
-                key = (roads[road_index[k]].id, side)
-                table.setdefault(key, {})[int(lane_id[k])] = (inner[k], outer[k])
+        for start in range(0, len(arrays.section_s0), SECTIONS_PER_BATCH):
+            batch = np.arange(start, min(start + SECTIONS_PER_BATCH, len(arrays.section_s0)))
+            sampling = sample_lanes_at(odr, *section_samples(arrays, step, True, batch))
+            inner = sampling.points_at(sampling.t_inner)[:, :2]
+            outer = sampling.points_at(sampling.t_outer)[:, :2]
+            section = sampling.section_index
+            road_index = arrays.section_road[section]
+            s, s0, end = sampling.s, arrays.section_s0[section], arrays.section_end[section]
+            at_start = first_section[section] & (s == s0)
+            at_end = last_section[section] & (s == end)
+            roads, lane_id = odr.roads, sampling.lane_id
+            # a key comes from one side only, so filling side by side per batch gives the whole map's table
+            for mask, side in ((at_start, "start"), (at_end, "end")):
+                for k in np.flatnonzero(mask):
+                    key = (roads[road_index[k]].id, side)
+                    table.setdefault(key, {})[int(lane_id[k])] = (inner[k], outer[k])
     cache["value"] = table
     return table
 
