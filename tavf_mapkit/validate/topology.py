@@ -256,6 +256,7 @@ def _contact_geometry(ctx, contacts):
     heading = np.degrees(np.abs(angle_difference(np.asarray(headings), np.pi)))
     comparable = np.asarray(comparable)
     cache["value"] = (np.where(comparable, distance, 0.0), np.where(comparable, heading, 0.0))
+    ctx.notes.pop("_end_borders", None)  # nothing else reads the border table: it need not outlive this
     return cache["value"]
 
 
