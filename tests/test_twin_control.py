@@ -18,7 +18,7 @@ from twin.control.pid import (
     split_acceleration,
 )
 from twin.control.purepursuit import PurePursuit
-from twin.planning.buffer import PathBuffer, join_cut, join_gap
+from twin.planning.buffer import JOIN_BOW, PathBuffer, join_cut, join_gap, straight_cut
 from twin.planning.chunks import PathChunk
 from twin.vehicle.params import MODEL_S
 
@@ -156,6 +156,38 @@ def test_a_chunk_that_goes_on_in_line_is_joined_without_a_diagonal():
     assert join_cut(1.9, 0.0) == 0.0 and join_cut(0.3, 0.5) == 2.0 * 2.0 - 0.3 and join_cut(0.0, 3.0) == 20.0
     # a lane change's diagonal (route_spans: 3.2 m over 9 m) is left as it is
     assert join_cut(9.0, 3.2) == 0.0
+
+
+def test_a_blend_replaces_only_the_straight_end_of_the_path_never_a_bend():
+    """Munich: a hairpin left turn whose last lane ends 4.3 m beside the next road asked for a 20 m blend. Cut
+    back through two short lanes into the 130-degree turn before them, the diagonal left the turn across its
+    inner curb (3 curb hits in 600 s). A diagonal lies inside the lanes it leaves only where they run
+    straight: the bend is kept whole and the blend replaces the straight after it."""
+    radius, angle = 6.0, math.radians(130.0)
+    t = np.linspace(0.0, angle, 15)
+    bend = np.column_stack([radius * np.sin(t), radius - radius * np.cos(t)])  # left, from heading 0
+    heading = np.array([math.cos(angle), math.sin(angle)])
+    straight = bend[-1] + np.arange(1.0, 7.0)[:, None] * heading  # 6 m on after the bend
+    before = np.column_stack([np.arange(-20.0, 0.0, 1.0), np.zeros(20)])
+    path = np.concatenate([before, bend, straight])
+    left = np.array([-heading[1], heading[0]])
+    start = path[-1] - 0.3 * heading + 4.3 * left  # 0.3 m behind the end, 4.3 m to its side
+    beyond = start + np.arange(0.0, 15.0)[:, None] * np.array([math.cos(angle + 0.6), math.sin(angle + 0.6)])
+    assert join_cut(*join_gap(path[-1], angle, start)) == pytest.approx(20.3)
+    zeros = np.zeros((len(path), 1))
+    x, y, lane, s = _joined(np.hstack([path, zeros]), np.hstack([beyond, np.zeros((15, 1))]))
+    kept = np.column_stack([x[lane == 0], y[lane == 0]])
+    assert np.array_equal(kept, path[:len(kept)])
+    # the bend is driven but for its last metres, which lie within JOIN_BOW of the chord the blend replaces
+    assert len(kept) >= len(before) + len(bend) - 2
+    chord = path[-1] - kept[-1]
+    rel = path[len(kept) - 1:] - kept[-1]
+    assert np.abs(chord[0] * rel[:, 1] - chord[1] * rel[:, 0]).max() / np.hypot(*chord) <= JOIN_BOW
+    along = np.r_[0.0, np.cumsum(np.hypot(*np.diff(path, axis=0).T))]
+    assert 6.0 <= straight_cut(path, along, 20.3) < 8.0
+    # on a straight path the full cut is kept (a lane merging into its neighbour)
+    line = np.column_stack([np.arange(0.0, 40.0), np.zeros(40)])
+    assert straight_cut(line, line[:, 0], 20.3) == 20.3 and JOIN_BOW < 0.5
 
 
 def _drive_scripted_path(dt: float, seconds: float = 20.0) -> np.ndarray:

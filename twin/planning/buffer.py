@@ -23,6 +23,12 @@ JOIN_GAP = 0.25  # m: a chunk starting farther than this to the side of the path
 JOIN_PER_GAP = 4.0  # the blend replaces this many metres of path per metre of sideways gap on each side...
 JOIN_MIN, JOIN_MAX = 2.0, 10.0  # ...within these bounds
 KEEP_BEHIND = 16  # points kept behind the vehicle when shifting
+# m: the blend's diagonal lies inside the lanes it leaves only where the path it replaces runs straight: no
+# point of that path farther than this from the chord it replaces. Munich: a hairpin left turn whose last
+# connecting lane ends 4.3 m beside the next road (netconvert's 0.12 m connector between two cluster junctions
+# lies elsewhere) asked for 20 m of blend; cut back through the 7.8 m connector, a 7.4 m road and into the
+# 130-degree turn before them, the diagonal left that turn across its inner curb
+JOIN_BOW = 0.25
 
 
 def join_gap(end: np.ndarray, heading: float, start: np.ndarray) -> tuple[float, float]:
@@ -44,6 +50,29 @@ def join_cut(ahead: float, aside: float) -> float:
     if (aside <= JOIN_GAP and ahead >= 0.0) or ahead >= aside:
         return 0.0
     return 2.0 * float(np.clip(JOIN_PER_GAP * aside, JOIN_MIN, JOIN_MAX)) - ahead
+
+
+def straight_cut(points: np.ndarray, along: np.ndarray, cut: float) -> float:
+    """The part of ``cut`` (m) that a blend may replace at the end of a path (``points`` (n, 2), ``along`` their
+    arc length): back to the farthest point from which the path runs straight to its end (every point within
+    ``JOIN_BOW`` of the chord from there to the end). The blend then starts at a point of the path, so what it
+    replaces is exactly ``along[-1] - along[k]``."""
+    n = len(points)
+    if cut <= 0.0 or n < 2:
+        return max(cut, 0.0)
+    first = max(int(np.searchsorted(along, along[-1] - cut, side="right")) - 1, 0)
+    tail = points[first:]
+    end = tail[-1]
+    chord = end[None, :] - tail  # from each candidate start k to the end
+    length = np.maximum(np.hypot(chord[:, 0], chord[:, 1]), 1e-9)
+    # distance of every point j >= k from the chord k -> end (rows k, columns j)
+    rel = tail[None, :, :] - tail[:, None, :]
+    distance = np.abs(chord[:, None, 0] * rel[:, :, 1] - chord[:, None, 1] * rel[:, :, 0]) / length[:, None]
+    later = np.arange(len(tail))[None, :] >= np.arange(len(tail))[:, None]
+    bow = np.where(later, distance, 0.0).max(axis=1)
+    bad = np.flatnonzero(bow > JOIN_BOW)
+    k = first if not len(bad) else first + int(bad[-1]) + 1  # straight from k on, back no farther than cut
+    return float(min(cut, along[-1] - along[min(k, n - 1)]))
 
 
 @dataclass(frozen=True, eq=False)
@@ -181,10 +210,13 @@ class PathBuffer:
         """Where lane ends do not meet (a lane merging into its neighbour, a kink between roads), drop the
         last ``cut`` metres (``join_cut``) of the path not yet reached, so the path crosses over to the next
         chunk's start on a straight diagonal like a lane change, inside the lanes it leaves, instead of
-        jumping sideways."""
+        jumping sideways. Only path that runs straight is replaced (``straight_cut``): a diagonal across a
+        bend would leave its lanes."""
         n = int(self.count[i])
         keep_until = min(int(self.base[i]) + 2, n)
-        kept = int(np.searchsorted(self.s[i, :n], self.s[i, n - 1] - cut, side="right"))
+        lo = int(self.base[i])
+        cut = straight_cut(np.column_stack([self.x[i, lo:n], self.y[i, lo:n]]), self.s[i, lo:n], cut)
+        kept = int(np.searchsorted(self.s[i, :n], self.s[i, n - 1] - cut + 1e-9, side="right"))
         self.count[i] = max(kept, keep_until, 1)
 
     def _shift(self, i: int) -> None:

@@ -31,7 +31,7 @@ from tavf_mapkit.lanegraph import LaneGraph, LaneKey
 from tavf_mapkit.mesh.swept_path import wheelbase_curvature
 from twin.control.pid import CARLA_LIMITS, ActuatorLimits
 from twin.map.lanelines import LaneLines
-from twin.planning.buffer import JOIN_GAP, join_cut, join_gap
+from twin.planning.buffer import JOIN_GAP, join_cut, join_gap, straight_cut
 from twin.planning.chunks import DEGENERATE_LANE
 from twin.vehicle.params import MODEL_S, VehicleParams
 
@@ -188,15 +188,17 @@ def lane_transitions(graph: LaneGraph, lines: LaneLines, undrivable: dict[LaneKe
 
 
 def _step_polyline(lines: LaneLines, a: LaneKey, b: LaneKey) -> np.ndarray:
-    """The end of lane a and the start of lane b as the path buffer joins them (plan view)."""
+    """The end of lane a and the start of lane b as the path buffer joins them (plan view): the blend's
+    diagonal (``join_cut``) replaces only the straight end of a (``straight_cut``), as in the buffer."""
     la, lb = lines[a], lines[b]
     end = la.points[-1, :2]
     before = la.points[-2, :2] if len(la.points) > 1 else end
     cut = 0.0
     if float(np.hypot(*(lb.points[0, :2] - end))) > JOIN_GAP:
         cut = join_cut(*join_gap(end, math.atan2(end[1] - before[1], end[0] - before[0]), lb.points[0, :2]))
+        cut = straight_cut(la.points[:, :2], la.along, cut)
     end = la.length - cut
-    tail = la.points[(la.along >= end - REACH) & (la.along <= end), :2]
+    tail = la.points[(la.along >= end - REACH) & (la.along <= end + 1e-9), :2]
     if not len(tail):
         tail = la.points[:1, :2]
     return np.concatenate([tail, lb.points[lb.along <= REACH, :2]])
