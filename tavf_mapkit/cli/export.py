@@ -15,31 +15,86 @@ from tavf_mapkit.errors import InputError
 from tavf_mapkit.opendrive.layers import LAYERS
 
 
+class LatLonType(click.ParamType):
+    """``LAT,LON`` in degrees."""
+
+    name = "LAT,LON"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, tuple):
+            return value
+        try:
+            lat, lon = (float(part) for part in str(value).split(","))
+        except ValueError:
+            self.fail(f"{value!r} is not LAT,LON in degrees (e.g. 51.5074,-0.1278)", param, ctx)
+        if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
+            self.fail(f"{value!r} lies outside -90..90, -180..180", param, ctx)
+        return lat, lon
+
+
+#: options of the layer export that mean nothing for a whole-map format (--to)
+_LAYER_ONLY = ("crs", "fmt", "precision")
+
+
 @click.command()
 @xodr_argument()
-@click.option("--layer", type=click.Choice(LAYERS), required=True, help="Which layer to export.")
+@click.option("--layer", type=click.Choice(LAYERS), default=None, help="Which layer to export.")
+@click.option("--to", "target", type=click.Choice(["lanelet2"]), default=None,
+              help="Export the whole map in another map format instead of a layer: lanelet2 (OSM XML).")
 @step_option
+@click.option("--eps", type=click.FloatRange(min=0.001), default=0.01, show_default=True,
+              help="With --to: largest distance (m) of a bound from the exact lane border; adaptive samples "
+                   "(give --step for a fixed step instead).")
+@click.option("--origin", type=LatLonType(), default=None,
+              help="With --to, for a map without <geoReference>: where its local (0, 0) lies.")
 @click.option("--crs", default=None,
               help="local (the file's own frame), wgs84, or EPSG:NNNN. Default: local for csv, wgs84 for geojson.")
 @click.option("--format", "fmt", type=click.Choice(["csv", "geojson"]), default="geojson", show_default=True)
 @click.option("--precision", type=click.IntRange(0, 12), default=None,
               help="Decimals of coordinates (default: 6 for metres, 9 for degrees).")
 @output_option
-def export(xodr: str, layer: str, step: float, crs: str | None, fmt: str, precision: int | None, output: str) -> None:
-    """Export a layer of an OpenDRIVE map.
+@click.pass_context
+def export(ctx: click.Context, xodr: str, layer: str | None, target: str | None, step: float, eps: float,
+           origin: tuple[float, float] | None, crs: str | None, fmt: str, precision: int | None,
+           output: str) -> None:
+    """Export a layer of an OpenDRIVE map, or the whole map as Lanelet2.
 
     \b
     $ mapkit export map.xodr --layer lane-border --format csv -o borders.csv
     $ mapkit export map.xodr --layer lane --format geojson -o lanes.geojson   # opens in QGIS
     $ mapkit export map.xodr --layer lane-center --crs EPSG:25832 --format csv -
+    $ mapkit export build/NAME/NAME.xodr --to lanelet2 -o map.osm
 
     Layers (after GDAL's XODR driver): reference-line, lane-border, lane-center, lane (polygons),
     road-mark, object, signal. CSV columns are a contract other tools rely on:
     lane-border: road,section_s0,lane,s,x,y,z (outer border of every lane but lane 0, sampled at s0,
     s0+step, ... and the section end; lane heights not applied); lane-center:
     road,section_s0,lane,type,s,x,y,z (lane heights applied). Other layers in CSV list their vertices.
+
+    --to lanelet2 writes a Lanelet2 OSM file instead: one lanelet per lane and lane section, bounds shared
+    with the neighbours, road marks as line types, signals as regulatory elements, every node at its WGS84
+    position (--format, --crs and --precision do not apply). Load it with the origin the command prints, the
+    local (0, 0) of the map (for our builds +lat_0/+lon_0 of the projection):
+    lanelet2.io.load(path, lanelet2.projection.LocalCartesianProjector(lanelet2.io.Origin(LAT, LON))) gives
+    back the OpenDRIVE x, y (to millimetres within a few km), UtmProjector the UTM easting/northing relative to
+    the origin's. See docs/export.md.
     """
     from tavf_mapkit.opendrive import load_opendrive
+
+    if (layer is None) == (target is None):
+        raise click.UsageError("give either --layer LAYER or --to lanelet2")
+    if target is not None:
+        given = [name for name in _LAYER_ONLY
+                 if ctx.get_parameter_source(name) is not click.core.ParameterSource.DEFAULT]
+        if given:
+            option = {"fmt": "--format"}.get(given[0], f"--{given[0]}")
+            raise click.UsageError(f"{option} is for --layer; --to {target} writes its own format")
+        fixed_step = step if ctx.get_parameter_source("step") is not click.core.ParameterSource.DEFAULT else None
+        _export_lanelet2(load_opendrive(xodr), xodr, output, eps, fixed_step, origin)
+        return
+    for name in ("eps", "origin"):
+        if ctx.get_parameter_source(name) is not click.core.ParameterSource.DEFAULT:
+            raise click.UsageError(f"--{name} is for --to lanelet2")
 
     odr = load_opendrive(xodr)
     crs = (crs or ("local" if fmt == "csv" else "wgs84")).strip()
@@ -58,6 +113,25 @@ def export(xodr: str, layer: str, step: float, crs: str | None, fmt: str, precis
         from tavf_mapkit.fileutil import write_text_atomic
 
         write_text_atomic(output, stream.getvalue())
+
+
+def _export_lanelet2(odr, xodr: str, output: str, eps: float, step: float | None,
+                     origin: tuple[float, float] | None) -> None:
+    from tavf_mapkit.lanelet2_export import export_lanelet2
+
+    summary = export_lanelet2(odr, output, eps=eps, step=step, origin=origin, name=xodr)
+    lat, lon = summary["origin"]
+    sampling = f"every {step:g} m" if step is not None else f"within {eps:g} m"
+    click.echo(f"lanelet2: {summary['lanelets']} lanelets, {summary['ways']} ways, {summary['nodes']} nodes, "
+               f"{summary['regulatory_elements']} regulatory elements; bounds {sampling} of the lane borders", err=True)
+    click.echo(f"origin  lat {lat:.10f} lon {lon:.10f} (local 0, 0): lanelet2.io.load(path, "
+               f"lanelet2.projection.LocalCartesianProjector(lanelet2.io.Origin({lat:.10f}, {lon:.10f})))", err=True)
+    for key, what in (("unjoined_lane_ends", "linked lane ends lie more than 10 cm apart: not joined"),
+                      ("narrow_lanes_left_out", "lanes narrower than 1 cm everywhere: left out"),
+                      ("private_bounds", "inside-out lanes given bounds of their own (no lane change there)"),
+                      ("turned", "lanelets Lanelet2 will read against their lane (inside out)")):
+        if summary.get(key):
+            click.echo(f"warning {summary[key]} {what}", err=True)
 
 
 def _transform(odr, crs: str, name: str):

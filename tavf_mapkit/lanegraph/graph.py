@@ -22,6 +22,15 @@ from tavf_mapkit.lanegraph.lanechange import lane_change_allowed
 from tavf_mapkit.lanegraph.topology import lane_end_pairs
 
 
+def lane_speed_limit(road, section_index: int, lane_id: int) -> float | None:
+    """m/s at the start of a lane section: the lane's speed record, else the road type's; None when unset."""
+    section = road.lane_sections[section_index]
+    limits = [value for s0, value in section.by_id[lane_id].speed_limits() if s0 <= section.s0 + 1e-6]
+    if limits:
+        return limits[-1]
+    return road.speed_limit(section.s0)
+
+
 class NoRouteError(MapkitError):
     """No path through the lane graph between two lanes."""
 
@@ -130,12 +139,7 @@ class LaneGraph:
 
     def speed_limit(self, key: LaneKey) -> float | None:
         """m/s from the lane's speed record, else the road type's; None when the map sets none."""
-        road = self.odr.roads[key.road_index]
-        section = road.lane_sections[key.section_index]
-        limits = [value for s0, value in section.by_id[key.lane_id].speed_limits() if s0 <= section.s0 + 1e-6]
-        if limits:
-            return limits[-1]
-        return road.speed_limit(section.s0)
+        return lane_speed_limit(self.odr.roads[key.road_index], key.section_index, key.lane_id)
 
     def centerline(self, key: LaneKey, step: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
         """(points (N, 3), road s (N,)) of the lane centre in driving direction, at most ``step`` apart."""

@@ -11,7 +11,8 @@ from __future__ import annotations
 _FORBIDDEN = {"solid", "solid solid", "curb", "grass", "edge"}
 
 
-def _mark_at(lane, s: float):
+def mark_at(lane, s: float):
+    """The road mark of ``lane`` in force at road s (the last one starting at or before it), or None."""
     mark = None
     for candidate in sorted(lane.road_marks, key=lambda m: m.s_offset):
         if candidate.s_offset <= s + 1e-9:
@@ -28,7 +29,7 @@ def lane_change_allowed(section, from_id: int, to_id: int, at: float = 0.0) -> b
     inner = section.by_id.get(inner_id)
     if inner is None:
         return True
-    mark = _mark_at(inner, at)
+    mark = mark_at(inner, at)
     if mark is None:
         return True
     if mark.lane_change is not None:

@@ -1,0 +1,113 @@
+"""A LaneletMap as Lanelet2's OSM XML: nodes with lat/lon and ``ele``, ways, lanelet and regulatory relations.
+
+Ids are positive and unique across all primitives (Lanelet2 keeps one id space): nodes 1..N, then ways, then
+lanelets, then regulatory elements. Every element carries ``version="1"`` so JOSM opens the file. Tag values
+come from the OpenDRIVE file (road ids, signal ids) and are escaped.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from xml.sax.saxutils import escape
+
+import numpy as np
+
+_ATTRIBUTE = {'"': "&quot;", "\n": "&#10;", "\r": "&#13;", "\t": "&#9;"}
+_STRING = np.dtypes.StringDType()
+
+
+def _text(value) -> str:
+    return escape(str(value), _ATTRIBUTE)
+
+
+@lru_cache(maxsize=4096)
+def _tag_block(items: tuple[tuple[str, str], ...]) -> str:
+    """The <tag> lines of a tag set (ways share a few sets, so each is formatted once)."""
+    return "".join(f'    <tag k="{_text(k)}" v="{_text(v)}"/>\n' for k, v in items)
+
+
+def _join(*columns) -> np.ndarray:
+    """Element-wise concatenation of string arrays and plain strings (numpy's variable-width strings)."""
+    out = np.asarray(columns[0]).astype(_STRING)
+    for column in columns[1:]:
+        out = np.strings.add(
+            out, np.asarray(column).astype(_STRING) if not isinstance(column, str) else column
+        )
+    return out
+
+
+def _fixed(values: np.ndarray, digits: int) -> np.ndarray:
+    """Fixed-point decimal strings of floats, through integers (numpy's %-formatting is much slower)."""
+    values = np.asarray(values, dtype=float)
+    scaled = np.rint(np.abs(values) * 10.0**digits).astype(np.int64)
+    whole, fraction = np.divmod(scaled, 10**digits)
+    sign = np.where((values < 0) & (scaled > 0), "-", "").astype(_STRING)
+    return _join(sign, whole.astype(_STRING), ".", np.strings.zfill(fraction.astype(_STRING), digits))
+
+
+def osm_text(laneletmap, lon: np.ndarray, lat: np.ndarray, comment: str = "") -> str:
+    """The whole file as text; ``lon``/``lat`` (degrees) of every node."""
+    n_nodes = len(laneletmap.nodes)
+    n_ways = len(laneletmap.way_nodes)
+    way_base = n_nodes + 1
+    lanelet_base = way_base + n_ways
+    regulatory_base = lanelet_base + len(laneletmap.lanelets)
+    parts = ['<?xml version="1.0" encoding="UTF-8"?>\n', '<osm version="0.6" generator="tavf-mapkit">\n']
+    if comment:
+        parts.append(f"  <!-- {_text(comment).replace('--', '- -')} -->\n")
+    if n_nodes:
+        parts.append(
+            f'  <bounds minlat="{lat.min():.10f}" minlon="{lon.min():.10f}" '
+            f'maxlat="{lat.max():.10f}" maxlon="{lon.max():.10f}"/>\n'
+        )
+        ids = np.arange(1, n_nodes + 1).astype(str)
+        parts.extend(
+            _join(
+                '  <node id="',
+                ids,
+                '" version="1" lat="',
+                _fixed(lat, 10),
+                '" lon="',
+                _fixed(lon, 10),
+                '">\n    <tag k="ele" v="',
+                _fixed(laneletmap.nodes[:, 2], 4),
+                '"/>\n  </node>\n',
+            ).tolist()
+        )
+    if n_ways:
+        counts = np.array([len(nodes) for nodes in laneletmap.way_nodes], dtype=np.int64)
+        refs = _join(
+            '    <nd ref="', (np.concatenate(laneletmap.way_nodes) + 1).astype(str), '"/>\n'
+        ).tolist()
+        ends = np.cumsum(counts)
+        for w, (start, end) in enumerate(zip(ends - counts, ends)):
+            parts.append(f'  <way id="{way_base + w}" version="1">\n')
+            parts.extend(refs[start:end])
+            parts.append(_tag_block(tuple(laneletmap.way_tags[w].items())))
+            parts.append("  </way>\n")
+    for i, lanelet in enumerate(laneletmap.lanelets):
+        parts.append(
+            f'  <relation id="{lanelet_base + i}" version="1">\n'
+            f'    <member type="way" ref="{way_base + lanelet["left"]}" role="left"/>\n'
+            f'    <member type="way" ref="{way_base + lanelet["right"]}" role="right"/>\n'
+        )
+        if "centerline" in lanelet:
+            parts.append(
+                f'    <member type="way" ref="{way_base + lanelet["centerline"]}" role="centerline"/>\n'
+            )
+        parts.extend(
+            f'    <member type="relation" ref="{regulatory_base + r}" role="regulatory_element"/>\n'
+            for r in lanelet["regulatory"]
+        )
+        parts.append(_tag_block(tuple(lanelet["tags"].items())))
+        parts.append("  </relation>\n")
+    for i, element in enumerate(laneletmap.regulatory):
+        parts.append(f'  <relation id="{regulatory_base + i}" version="1">\n')
+        parts.extend(
+            f'    <member type="{kind}" ref="{way_base + index}" role="{role}"/>\n'
+            for kind, index, role in element["members"]
+        )
+        parts.append(_tag_block(tuple(element["tags"].items())))
+        parts.append("  </relation>\n")
+    parts.append("</osm>\n")
+    return "".join(parts)
