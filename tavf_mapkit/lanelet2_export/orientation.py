@@ -169,6 +169,8 @@ def give_private_bounds(laneletmap) -> tuple[int, int]:
         else:
             continue
         laneletmap.nodes = everything
+        # say so in the file: the lane's own geometry is inside out here, and its lane changes are gone
+        lanelet["tags"]["opendrive:inside_out"] = "yes"
         for key, line in (("left", left_ids), ("right", right_ids)):
             line = line[np.concatenate([[True], line[1:] != line[:-1]])]
             laneletmap.way_tags.append(dict(laneletmap.way_tags[lanelet[key]]))
