@@ -1,19 +1,21 @@
 """An OpenDRIVE map as Lanelet2 primitives: one lanelet per lane and lane section, bounds shared by
 neighbours.
 
-Steps (all vectorised over the map but the per-lane and per-signal bookkeeping):
+Steps (vectorised over the map but the per-lane, per-way and per-signal bookkeeping):
 
 1. sample every lane section once, adaptively (no bound further than ``eps`` from the exact border) or every
    ``step`` metres, and evaluate each needed border there (``bounds.sample_borders``);
 2. pick the lanes that get a lanelet (``mapping.lanelet_tags``) and orient each along its driving direction
    (``lanegraph.drives_with_s``: right-hand traffic drives right lanes with s, ``rule="LHT"`` mirrors it, an
    OpenDRIVE 1.8 ``direction="reversed"`` flips it): left bound = the border on the driver's left;
-3. join the corners of lane ends the map links (``lanegraph.topology.lane_end_pairs``), so Lanelet2's routing
+3. cut folded borders (``folds``) and choose the samples of sections Lanelet2 would misread (``untangle``);
+4. join the corners of lane ends the map links (``lanegraph.topology.lane_end_pairs``), so Lanelet2's routing
    graph finds the same successors as our lane graph, and merge coinciding points into nodes
    (``nodes.merge_points``);
-4. tag every border way with its road mark's line type, adding explicit ``lane_change`` tags where the line
-   type alone would tell Lanelet2 something else than the mark does for our lane graph;
-5. signals become regulatory elements (``regulatory``).
+5. tag every border way with its road mark's line type, adding explicit ``lane_change`` tags where the line
+   type alone would tell Lanelet2 something else than the mark does for our lane graph; give every lanelet our
+   centre line (``centreline``), and inside-out ones bounds of their own (``orientation``);
+6. signals become regulatory elements (``regulatory``).
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ from tavf_mapkit.lanelet2_export.nodes import merge_points
 from tavf_mapkit.lanelet2_export.orientation import give_private_bounds
 from tavf_mapkit.lanelet2_export.regulatory import signal_elements
 from tavf_mapkit.lanelet2_export.untangle import untangle_sections
+from tavf_mapkit.opendrive.surface import surface_frame
 
 #: lane ends the map links are joined into one node when their corners lie at most this far apart (m); a
 #: repaired build has them within a millimetre, further apart a link is broken and joining would bend the
@@ -45,16 +48,15 @@ MIN_WIDTH = 0.01
 
 @dataclass
 class LaneletMap:
-    """Primitives by index; ``osmxml.write_osm`` gives them ids. Ways hold node indices."""
+    """Primitives by index; ``osmxml.osm_text`` gives them ids. Ways hold node indices."""
 
     nodes: np.ndarray  # (n, 3) local x, y, z
     way_nodes: list[np.ndarray]
     way_tags: list[dict[str, str]]
     lanelets: list[dict] = field(default_factory=list)  # {"left", "right", "tags", "regulatory"}
     regulatory: list[dict] = field(default_factory=list)  # {"tags", "members": [(kind, index, role)]}
-    lanelet_keys: list[tuple[int, int, int]] = field(
-        default_factory=list
-    )  # (road index, section index, lane id)
+    # (road index, section index, lane id) of every lanelet
+    lanelet_keys: list[tuple[int, int, int]] = field(default_factory=list)
     max_deviation: float | None = None  # adaptive sampling's largest measured distance to the exact border
     unjoined: int = 0  # linked lane ends whose corners were too far apart to join
     narrow: int = 0  # lanes left out for being narrower than MIN_WIDTH
@@ -66,7 +68,6 @@ def build_lanelet_map(odr, eps: float = 0.01, step: float | None = None) -> Lane
     from tavf_mapkit.opendrive.sampling import sample_lanes_at, section_samples
 
     arrays = odr.arrays
-    n_lanes = len(arrays.lane_id)
     max_deviation = None
     if step is None:
         from tavf_mapkit.mesh.adaptive import adaptive_samples
@@ -77,51 +78,15 @@ def build_lanelet_map(odr, eps: float = 0.01, step: float | None = None) -> Lane
         sample_section, sample_s = section_samples(arrays, step, include_end=True)
     sampling = sample_lanes_at(odr, sample_section, sample_s)
     per_section = np.bincount(sample_section, minlength=len(arrays.section_s0))
-    width = np.zeros(n_lanes)
-    np.maximum.at(width, sampling.pair_lane, np.abs(sampling.t_outer - sampling.t_inner))
 
     # -- which lanes, which way round ---------------------------------------------------------------------
     section_first = np.searchsorted(arrays.section_road, np.arange(len(odr.roads)), side="left")
-    rows, tags, forward, keys = [], [], [], []
-    narrow = 0
-    for row in range(n_lanes):
-        section_row = int(arrays.lane_section[row])
-        if per_section[section_row] < 2:
-            continue
-        road_index = int(arrays.section_road[section_row])
-        road = odr.roads[road_index]
-        k = section_row - int(section_first[road_index])
-        section = road.lane_sections[k]
-        lane = section.by_id[int(arrays.lane_id[row])]
-        lane_tags = lanelet_tags(lane.type, _road_type(road, section.s0))
-        if lane_tags is None:
-            continue
-        if width[row] < MIN_WIDTH:
-            narrow += 1
-            continue
-        speed = lane_speed_limit(road, k, lane.id)
-        if speed is not None and np.isfinite(speed) and speed > 0:
-            lane_tags["speed_limit"] = f"{speed * 3.6:.6g} km/h"
-        lane_tags.update(
-            {
-                "opendrive:road": road.id,
-                "opendrive:lane_section": str(k),
-                "opendrive:lane": str(lane.id),
-                "opendrive:lane_type": lane.type,
-            }
-        )
-        rows.append(row)
-        tags.append(lane_tags)
-        forward.append(drives_with_s(road, lane))
-        keys.append((road_index, k, lane.id))
-    rows = np.array(rows, dtype=np.int64)
-    forward = np.array(forward, dtype=bool)
+    rows, tags, forward, keys, narrow = _select_lanes(odr, sampling, per_section, section_first)
     borders = sample_borders(odr, sampling, rows)
     inner = borders.inner(rows, arrays)
     right_side = arrays.lane_id[rows] < 0
-    plus_t = np.where(
-        right_side, inner, rows
-    )  # the +t side is inside for right lanes, outside for left lanes
+    # the +t side is inside for right lanes, outside for left lanes
+    plus_t = np.where(right_side, inner, rows)
     minus_t = np.where(right_side, rows, inner)
     left = np.where(forward, plus_t, minus_t)
     right = np.where(forward, minus_t, plus_t)
@@ -153,8 +118,6 @@ def build_lanelet_map(odr, eps: float = 0.01, step: float | None = None) -> Lane
     marks = _BorderMarks(odr, borders, section_first, rows, forward)
     keep = np.concatenate([border_keep, centre.keep])
     for border, nodes in zip(used, _node_runs(borders.start[used], borders.count[used], node_of, keep)):
-        if len(nodes) < 1:
-            continue  # shorter than a node: no way, and the lanelets on it are dropped below
         way_of_border[border] = len(way_nodes)
         way_nodes.append(nodes)
         way_tags.append(marks.tags(int(border)))
@@ -166,10 +129,8 @@ def build_lanelet_map(odr, eps: float = 0.01, step: float | None = None) -> Lane
     section_start = np.searchsorted(sampling.sample_section, arrays.lane_section[rows], side="left")
     middle_sample = section_start + per_section[arrays.lane_section[rows]] // 2
     heading = sampling.heading[middle_sample] + np.where(forward, 0.0, np.pi)
-    middle_pair = (
-        np.searchsorted(sampling.pair_lane, rows, side="left") + per_section[arrays.lane_section[rows]] // 2
-    )
-    middle_point = sampling.center_points(with_height=False)[middle_pair] if len(rows) else np.zeros((0, 3))
+    middle_pair = np.searchsorted(sampling.pair_lane, rows) + per_section[arrays.lane_section[rows]] // 2
+    middle_point = _centre_at(sampling, middle_pair)
     centre_runs = _node_runs(centre.start + len(border_points), centre.count, node_of, keep)
     centre_of = dict(enumerate(centre_runs))
     index_of = {}
@@ -197,7 +158,15 @@ def build_lanelet_map(odr, eps: float = 0.01, step: float | None = None) -> Lane
 
     laneletmap.private_bounds, laneletmap.turned = give_private_bounds(laneletmap)
 
-    # -- regulatory elements ------------------------------------------------------------------------------
+    _add_regulatory_elements(laneletmap, elements, element_points, node_of, index_of)
+    return laneletmap
+
+
+def _add_regulatory_elements(
+    laneletmap: LaneletMap, elements, element_points, node_of: np.ndarray, index_of: dict[int, int]
+) -> None:
+    """Regulatory elements of the signals that govern written lanelets: a ``refers`` way for the signal, a
+    ``ref_line`` stop line (one way for all signals with the same one)."""
     stop_lines: dict[tuple[int, ...], int] = {}
     for element, (refers, stop) in zip(elements, element_points):
         lanelets = [index_of[i] for i in element.lanelets if i in index_of]
@@ -219,7 +188,56 @@ def build_lanelet_map(odr, eps: float = 0.01, step: float | None = None) -> Lane
         laneletmap.regulatory.append({"tags": element.tags, "members": members})
         for i in lanelets:
             laneletmap.lanelets[i]["regulatory"].append(number)
-    return laneletmap
+
+
+def _select_lanes(odr, sampling, per_section: np.ndarray, section_first: np.ndarray):
+    """(rows, lanelet tags, drives with s, (road index, section index, lane id), lanes too narrow) of the lanes
+    that get a lanelet."""
+    arrays = odr.arrays
+    width = np.zeros(len(arrays.lane_id))
+    np.maximum.at(width, sampling.pair_lane, np.abs(sampling.t_outer - sampling.t_inner))
+    rows, tags, forward, keys = [], [], [], []
+    narrow = 0
+    for row in range(len(arrays.lane_id)):
+        section_row = int(arrays.lane_section[row])
+        if per_section[section_row] < 2:
+            continue
+        road_index = int(arrays.section_road[section_row])
+        road = odr.roads[road_index]
+        k = section_row - int(section_first[road_index])
+        section = road.lane_sections[k]
+        lane = section.by_id[int(arrays.lane_id[row])]
+        lane_tags = lanelet_tags(lane.type, _road_type(road, section.s0))
+        if lane_tags is None:
+            continue
+        if width[row] < MIN_WIDTH:
+            narrow += 1
+            continue
+        speed = lane_speed_limit(road, k, lane.id)
+        if speed is not None and np.isfinite(speed) and speed > 0:
+            lane_tags["speed_limit"] = f"{speed * 3.6:.6g} km/h"
+        lane_tags.update(
+            {
+                "opendrive:road": road.id,
+                "opendrive:lane_section": str(k),
+                "opendrive:lane": str(lane.id),
+                "opendrive:lane_type": lane.type,
+            }
+        )
+        rows.append(row)
+        tags.append(lane_tags)
+        forward.append(drives_with_s(road, lane))
+        keys.append((road_index, k, lane.id))
+    return np.array(rows, dtype=np.int64), tags, np.array(forward, dtype=bool), keys, narrow
+
+
+def _centre_at(sampling, pairs: np.ndarray) -> np.ndarray:
+    """(n, 3) lane-centre points of the given (lane, sample) pairs of a sampling."""
+    sample = sampling.pair_sample[pairs]
+    e_t, _ = surface_frame(sampling.heading[sample], sampling.slope[sample], sampling.superelevation[sample])
+    t = 0.5 * (sampling.t_inner[pairs] + sampling.t_outer[pairs])
+    reference = np.column_stack([sampling.ref_x[sample], sampling.ref_y[sample], sampling.ref_z[sample]])
+    return reference + t[:, None] * e_t
 
 
 def _road_type(road, s: float) -> str | None:
