@@ -355,6 +355,19 @@ def test_left_hand_traffic_zoo_road(lanelet2, shared, tmp_path):
         assert (along > 0) == (key.lane_id > 0), key
 
 
+def test_names_from_the_file_are_escaped(lanelet2, tmp_path):
+    """Road and signal ids come from the input: quotes, ampersands and angle brackets reach Lanelet2 intact."""
+    xodr = tmp_path / "names.xodr"
+    text = synthetic_xodr().replace('<road id="1"', '<road id="A&amp;B &quot;1&quot; &lt;x&gt;"')
+    xodr.write_text(text.replace('id="stop1"', 'id="stop&amp;go"'))
+    odr = load_opendrive(str(xodr))
+    view, _ = _export(lanelet2, odr, tmp_path, "names")
+    assert view.errors == []
+    assert {ll.attributes["opendrive:road"] for ll in view.by_key.values()} == {'A&B "1" <x>'}
+    signs = [r for r in view.map.regulatoryElementLayer if r.attributes["subtype"] == "traffic_sign"]
+    assert signs[0].parameters["refers"][0].attributes["opendrive:signal"] == "stop&go"
+
+
 def test_cli_errors(tmp_path, lanelet2):
     xodr = tmp_path / "synthetic.xodr"
     xodr.write_text(synthetic_xodr())

@@ -191,8 +191,8 @@ def _add_regulatory_elements(
 
 
 def _select_lanes(odr, sampling, per_section: np.ndarray, section_first: np.ndarray):
-    """(rows, lanelet tags, drives with s, (road index, section index, lane id), lanes too narrow) of the lanes
-    that get a lanelet."""
+    """(rows, lanelet tags, drives with s, (road index, section index, lane id), lanes too narrow) of the
+    lanes that get a lanelet."""
     arrays = odr.arrays
     width = np.zeros(len(arrays.lane_id))
     np.maximum.at(width, sampling.pair_lane, np.abs(sampling.t_outer - sampling.t_inner))

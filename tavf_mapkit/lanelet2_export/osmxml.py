@@ -7,6 +7,7 @@ come from the OpenDRIVE file (road ids, signal ids) and are escaped.
 
 from __future__ import annotations
 
+import re
 from functools import lru_cache
 from xml.sax.saxutils import escape
 
@@ -16,8 +17,12 @@ _ATTRIBUTE = {'"': "&quot;", "\n": "&#10;", "\r": "&#13;", "\t": "&#9;"}
 _STRING = np.dtypes.StringDType()
 
 
+_SPECIAL = re.compile(r'[&<>"\n\r\t]')
+
+
 def _text(value) -> str:
-    return escape(str(value), _ATTRIBUTE)
+    text = str(value)
+    return escape(text, _ATTRIBUTE) if _SPECIAL.search(text) else text
 
 
 @lru_cache(maxsize=4096)
