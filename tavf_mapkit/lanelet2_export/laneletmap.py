@@ -207,7 +207,8 @@ def _select_lanes(odr, sampling, per_section: np.ndarray, section_first: np.ndar
         k = section_row - int(section_first[road_index])
         section = road.lane_sections[k]
         lane = section.by_id[int(arrays.lane_id[row])]
-        lane_tags = lanelet_tags(lane.type, _road_type(road, section.s0))
+        road_type = road.type_at(section.s0)
+        lane_tags = lanelet_tags(lane.type, None if road_type is None else road_type.type)
         if lane_tags is None:
             continue
         if width[row] < MIN_WIDTH:
@@ -238,14 +239,6 @@ def _centre_at(sampling, pairs: np.ndarray) -> np.ndarray:
     t = 0.5 * (sampling.t_inner[pairs] + sampling.t_outer[pairs])
     reference = np.column_stack([sampling.ref_x[sample], sampling.ref_y[sample], sampling.ref_z[sample]])
     return reference + t[:, None] * e_t
-
-
-def _road_type(road, s: float) -> str | None:
-    kind = None
-    for record in road.types:
-        if record.s0 <= s + 1e-9:
-            kind = record.type
-    return kind
 
 
 def _dedup(nodes: np.ndarray) -> np.ndarray:

@@ -105,10 +105,15 @@ class Road:
         t = self.lane_borders(section_index, s)[lane_id]
         return self.surface_point(s, t)
 
-    def speed_limit(self, s: float) -> float | None:
-        """Speed limit of the road type record at s in m/s (None if none is set)."""
-        limit = None
+    def type_at(self, s: float) -> RoadType | None:
+        """The road type record in force at s (the last one starting at or before it), None before the first."""
+        found = None
         for road_type in self.types:
             if road_type.s0 <= s + 1e-9:
-                limit = road_type.speed_max
-        return limit
+                found = road_type
+        return found
+
+    def speed_limit(self, s: float) -> float | None:
+        """Speed limit of the road type record at s in m/s (None if none is set)."""
+        road_type = self.type_at(s)
+        return None if road_type is None else road_type.speed_max
