@@ -20,6 +20,7 @@ COMMANDS = {
     "compare": "tavf_mapkit.cli.compare:compare",
     "match-trace": "tavf_mapkit.cli.match_trace:match_trace",
     "baseline": "tavf_mapkit.cli.baseline:baseline",
+    "view": "tavf_mapkit.cli.view:view",
 }
 
 

@@ -1,0 +1,260 @@
+"""A build's map as WGS84 GeoJSON for the 2D page: the same layers ``mapkit export`` writes (one lane
+polygon per lane and lane section, road marks, signals, objects), junction outlines (the mesh's junction
+footprints), every validation finding and repair as a point where it happened, and the GNSS trace with its
+matched path.
+
+Geometry comes from the project's evaluator only: ``opendrive.layers`` for the layers, ``Road.lane_borders``
+(opendrive/borders.py underneath) to put a finding on its lane, ``mesh.junctions.junction_footprints`` for
+the outlines. Shapes are thinned for display (``TOLERANCE_M``: a vertex goes only where the shape bends more
+than that), which keeps a city's page a few megabytes instead of tens.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import shapely
+
+from tavf_mapkit.errors import InputError
+
+STEP_M = 1.0         # sampling step of the lane and mark layers along s
+TOLERANCE_M = 0.05   # display thinning (Douglas-Peucker in local metres, before the projection)
+DIGITS = 7           # decimals of lon/lat: 1.1 cm
+
+
+def map_data(odr, *, name: str, findings=(), repairs=None, match=None, attribution: str | None = None,
+             step: float = STEP_M) -> dict:
+    """Everything the 2D page draws, JSON-ready: {name, georeference, bounds, layers: {lanes, marks, signals,
+    objects, junctions, findings, repairs, gnss, matched}}; ``findings`` are validation findings as dicts
+    (rule, severity, road, lane, s, line, message), ``repairs`` the opendrive stage's ``repairs`` facts,
+    ``match`` a (trace, MatchResult) pair."""
+    georef, placed = display_georeference(odr)
+    project = _Projector(georef)
+    from tavf_mapkit.opendrive.layers import layer_features
+
+    layers = {
+        "lanes": project.collection(layer_features(odr, "lane", step)),
+        "marks": project.collection(layer_features(odr, "road-mark", step)),
+        "signals": project.collection(layer_features(odr, "signal", step)),
+        "objects": project.collection(layer_features(odr, "object", step)),
+        "junctions": project.shapes(_junction_outlines(odr, step)),
+        "findings": project.points(*_finding_points(odr, findings)),
+        "repairs": project.points(*_repair_points(odr, repairs)),
+    }
+    if match is not None:
+        layers.update(_gnss_layers(odr, project, *match))
+    lon, lat = (np.asarray(v) for v in georef.local_to_wgs84(*_corners(odr)))
+    return {
+        "name": name,
+        "georeference": None if placed else georef.text,
+        "placed_at_null_island": placed,
+        "attribution": attribution,
+        "bounds": [[float(lat.min()), float(lon.min())], [float(lat.max()), float(lon.max())]],
+        "lane_count": len(layers["lanes"]["features"]),
+        "layers": layers,
+    }
+
+
+def display_georeference(odr):
+    """(georeference, placed): the map's own, or -- for a map without one -- the twin's placement at
+    0 deg N 0 deg E (so the 2D page and a drive's lat/lon agree)."""
+    from twin.sim.build import georeference_for_driving
+
+    return georeference_for_driving(odr)
+
+
+class _Projector:
+    """Local x, y -> rounded lon, lat; shapes thinned in local metres first."""
+
+    def __init__(self, georef):
+        self.georef = georef
+
+    def lonlat(self, xy: np.ndarray) -> list:
+        lon, lat = self.georef.local_to_wgs84(xy[:, 0], xy[:, 1])
+        return np.column_stack([np.round(np.atleast_1d(lon), DIGITS),
+                                np.round(np.atleast_1d(lat), DIGITS)]).tolist()
+
+    def collection(self, features) -> dict:
+        out = []
+        for feature in features:
+            xy = feature.coordinates[:, :2]
+            if feature.kind == "Point":
+                geometry = {"type": "Point", "coordinates": self.lonlat(xy)[0]}
+            elif feature.kind == "Polygon":
+                ring = shapely.simplify(shapely.LinearRing(xy), TOLERANCE_M, preserve_topology=True)
+                geometry = {"type": "Polygon", "coordinates": [self.lonlat(shapely.get_coordinates(ring))]}
+            else:
+                line = shapely.simplify(shapely.LineString(xy), TOLERANCE_M, preserve_topology=True)
+                geometry = {"type": "LineString", "coordinates": self.lonlat(shapely.get_coordinates(line))}
+            out.append({"type": "Feature", "geometry": geometry, "properties": jsonable(feature.properties)})
+        return {"type": "FeatureCollection", "features": out}
+
+    def shapes(self, shapes: dict) -> dict:
+        """{id: shapely (Multi)Polygon} -> outlines as GeoJSON polygons."""
+        out = []
+        for key, shape in shapes.items():
+            polygons = []
+            for part in shapely.get_parts(shapely.simplify(shape, TOLERANCE_M, preserve_topology=True)):
+                rings = [part.exterior, *part.interiors]
+                polygons.append([self.lonlat(shapely.get_coordinates(ring)) for ring in rings])
+            if polygons:
+                out.append({"type": "Feature", "properties": {"junction": key},
+                            "geometry": {"type": "MultiPolygon", "coordinates": polygons}})
+        return {"type": "FeatureCollection", "features": out}
+
+    def points(self, xy: np.ndarray, properties: list[dict]) -> dict:
+        coordinates = self.lonlat(xy) if len(properties) else []
+        return {"type": "FeatureCollection", "features": [
+            {"type": "Feature", "geometry": {"type": "Point", "coordinates": c}, "properties": p}
+            for c, p in zip(coordinates, properties)]}
+
+
+def _corners(odr) -> tuple[np.ndarray, np.ndarray]:
+    west, south, east, north = odr.bounds(step=10.0)
+    return np.array([west, east, east, west]), np.array([south, south, north, north])
+
+
+def _junction_outlines(odr, step: float) -> dict:
+    from tavf_mapkit.mesh.junctions import junction_footprints
+    from tavf_mapkit.opendrive.sampling import sample_lanes
+
+    sampling = sample_lanes(odr, step)
+    return junction_footprints(odr, sampling, np.zeros(len(odr.arrays.lane_id), dtype=bool))
+
+
+def place_on_road(odr, road_id, lane, s) -> np.ndarray | None:
+    """Local (x, y) of a place named as (road, lane, s): the lane's centre at s, the reference line where no
+    lane is named (or it does not exist there), the road's middle where no s is; None for an unknown road."""
+    road = odr.road_by_id.get(str(road_id)) if road_id is not None else None
+    if road is None:
+        return None
+    s = road.length / 2 if s is None else min(max(float(s), 0.0), road.length)
+    t = 0.0
+    if lane not in (None, 0) and road.lane_sections:
+        section = int(road.section_index(s))
+        borders = road.lane_borders(section, [s])
+        lane = int(lane)
+        inner = lane - 1 if lane > 0 else lane + 1
+        if lane in borders and inner in borders:
+            t = float(0.5 * (borders[lane][0] + borders[inner][0]))
+    return road.surface_point([s], t)[0, :2]
+
+
+def _finding_points(odr, findings) -> tuple[np.ndarray, list[dict]]:
+    """Findings that name a road, at their place; each keeps rule, severity, road, lane, s, line, message."""
+    xy, properties = [], []
+    for finding in findings:
+        finding = finding.to_dict() if hasattr(finding, "to_dict") else dict(finding)
+        place = place_on_road(odr, finding.get("road"), finding.get("lane"), finding.get("s"))
+        if place is None:
+            continue
+        xy.append(place)
+        properties.append({key: finding.get(key) for key in
+                           ("rule", "severity", "road", "lane", "s", "line", "message")})
+    return np.reshape(np.array(xy, dtype=float), (-1, 2)), properties
+
+
+def _repair_points(odr, repairs) -> tuple[np.ndarray, list[dict]]:
+    """One point per repaired road (at its middle), named by the repair; repairs without roads are skipped
+    (the page lists every repair with its count anyway)."""
+    xy, properties = [], []
+    for name, value in (repairs or {}).items() if isinstance(repairs, dict) else ():
+        roads = value.get("roads") if isinstance(value, dict) else None
+        for road in roads or ():
+            place = place_on_road(odr, road, None, None)
+            if place is not None:
+                xy.append(place)
+                properties.append({"repair": str(name), "road": str(road)})
+    return np.reshape(np.array(xy, dtype=float), (-1, 2)), properties
+
+
+def repair_counts(repairs) -> list[dict]:
+    """[{repair, count}] of the opendrive stage's repairs facts (the page's table)."""
+    from tavf_mapkit.pipeline.builtin.check import repair_rows
+
+    return [{"repair": row["repair"], "count": row["count"]} for row in repair_rows(repairs or {})]
+
+
+def _gnss_layers(odr, project: _Projector, trace, result) -> dict:
+    """The trace's fixes (with their distance to the matched lane) and the matched lanes' centre lines."""
+    from tavf_mapkit.lanegraph import LaneIndex
+
+    fixes = project.points(np.column_stack([result.x, result.y]), [
+        {"i": i, "matched": bool(result.matched[i]), "road": result.road_id[i] or None,
+         "lane": int(result.lane_id[i]) if result.matched[i] else None,
+         "distance_m": None if not np.isfinite(result.distance_m[i]) else round(float(result.distance_m[i]), 3)}
+        for i in range(len(result))])
+    route = []
+    if result.lane_route:
+        # the matched lanes' centre lines, from the lane graph the matcher used
+        from tavf_mapkit.lanegraph import LaneGraph
+
+        index = LaneIndex(LaneGraph.from_opendrive(odr))
+        wanted = {index.keys.index(key) for key in result.lane_route if key in index.keys}
+        for node in sorted(wanted):
+            points = index.xy[index.node == node]
+            if len(points) >= 2:
+                route.append({"type": "Feature", "properties": {"lane": str(index.keys[node])},
+                              "geometry": {"type": "LineString", "coordinates": project.lonlat(points)}})
+    return {"gnss": fixes, "matched": {"type": "FeatureCollection", "features": route}}
+
+
+def jsonable(properties: dict) -> dict:
+    """numpy scalars -> Python; non-finite floats -> None (JSON has no NaN)."""
+    out = {}
+    for key, value in properties.items():
+        if isinstance(value, (np.floating, float)):
+            value = float(value) if np.isfinite(value) else None
+        elif isinstance(value, np.integer):
+            value = int(value)
+        elif isinstance(value, np.bool_):
+            value = bool(value)
+        out[key] = value
+    return out
+
+
+def build_map_data(build, odr=None, *, step: float = STEP_M) -> dict:
+    """map_data of a build folder (twin.sim.build.Build): its findings (report/validate.json), the opendrive
+    stage's repairs (manifest), and the GNSS trace the check stage matched ([check] gnss_trace_path), matched
+    again here (the report keeps only its statistics)."""
+    from tavf_mapkit.opendrive import load_opendrive
+
+    odr = odr if odr is not None else load_opendrive(build.xodr)
+    findings = []
+    validate = build.path / "report" / "validate.json"
+    if validate.is_file():
+        try:
+            findings = json.loads(validate.read_text(encoding="utf-8")).get("findings") or []
+        except ValueError as error:
+            raise InputError(f"unreadable JSON: {error}", file=str(validate)) from None
+    stages = {stage.get("name"): stage for stage in build.manifest.get("stages") or () if isinstance(stage, dict)}
+    repairs = ((stages.get("opendrive") or {}).get("facts") or {}).get("repairs")
+    data = map_data(odr, name=build.name, findings=findings, repairs=repairs, match=_build_match(build, odr),
+                    attribution=build.manifest.get("attribution"), step=step)
+    data["repair_counts"] = repair_counts(repairs)
+    data["findings_total"] = len(findings)
+    return data
+
+
+def _build_match(build, odr):
+    """(trace, MatchResult) of the build's GNSS trace, or None (no trace in the build, or it is gone)."""
+    trace_input = next((entry for entry in build.manifest.get("inputs") or ()
+                        if isinstance(entry, dict) and entry.get("role") == "check.gnss_trace_path"), None)
+    if trace_input is None or not Path(str(trace_input.get("path"))).is_file():
+        return None
+    return match_gnss(odr, trace_input["path"])
+
+
+def match_gnss(odr, trace_path):
+    """(trace, MatchResult) of a GNSS trace on the map, as the check stage matches it; None when it cannot be."""
+    from tavf_mapkit.accuracy.matching import match_trace
+    from tavf_mapkit.lanegraph import LaneGraph
+    from tavf_mapkit.traces import read_trace
+
+    try:
+        trace = read_trace(trace_path)
+        return trace, match_trace(odr, trace, LaneGraph.from_opendrive(odr))
+    except InputError:
+        return None

@@ -1,0 +1,51 @@
+"""The HTML of the views: the live page ``mapkit view`` serves, and the static 2D map of report/index.html
+(everything inline -- Leaflet, its stylesheet with its images as data URIs, the page's script and the map
+data -- so the file opens from disk, by e-mail, with no server and no internet)."""
+
+from __future__ import annotations
+
+import base64
+import json
+import re
+
+from tavf_mapkit.view.server import STATIC
+
+
+def live_page(*, basemap: bool = False) -> str:
+    """static/index.html with the page's options filled in."""
+    html = (STATIC / "index.html").read_text(encoding="utf-8")
+    return html.replace("/*OPTIONS*/{}/*END*/", json.dumps({"basemap": bool(basemap)}))
+
+
+def _script(text: str) -> str:
+    # "</script" inside a script would end it early; "<\/" means the same to JavaScript
+    return "<script>" + text.replace("</", "<\\/") + "</script>"
+
+
+def _leaflet_css() -> str:
+    """leaflet.css with url(images/x.png) turned into data URIs (no file beside the report to point to)."""
+    folder = STATIC / "vendor" / "leaflet"
+    css = (folder / "leaflet.css").read_text(encoding="utf-8")
+
+    def inline(match: re.Match) -> str:
+        image = folder / "images" / match.group(1)
+        if not image.is_file():
+            return match.group(0)
+        return "url(data:image/png;base64," + base64.b64encode(image.read_bytes()).decode("ascii") + ")"
+
+    return re.sub(r"url\(images/([\w.-]+\.png)\)", inline, css)
+
+
+def static_map(data: dict, *, element_id: str = "map", basemap: bool = False) -> tuple[str, str]:
+    """(head, body) HTML of a self-contained 2D map of ``data`` (mapdata.map_data): styles for the head,
+    the map's element and scripts for the body."""
+    head = "<style>" + _leaflet_css() + (STATIC / "map2d.css").read_text(encoding="utf-8") + "</style>"
+    payload = json.dumps(data, separators=(",", ":"), allow_nan=False)
+    body = (f"<div id='{element_id}' class='report-map'></div>"
+            + _script((STATIC / "vendor" / "leaflet" / "leaflet.js").read_text(encoding="utf-8"))
+            + _script((STATIC / "map2d.js").read_text(encoding="utf-8"))
+            + _script(f"window.MAPKIT_DATA = {payload};\n"
+                      f"window.mapkit = {{data: window.MAPKIT_DATA, map2d: window.MapkitMap2D("
+                      f"document.getElementById({json.dumps(element_id)}), window.MAPKIT_DATA, "
+                      f"{json.dumps({'basemap': bool(basemap)})})}};"))
+    return head, body
