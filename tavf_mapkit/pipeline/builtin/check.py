@@ -1,7 +1,8 @@
 """Stage "check": validate the OpenDRIVE, check the georeference round trip, and measure the build against
 the references the pipeline file names ([check] reference_network_path, gnss_trace_path) with the
 thresholds of [check.thresholds]. Writes report/check.json, report/validate.json, report/compare.json,
-report/match-trace.json, PNG plots and report/index.html (one self-contained page).
+report/match-trace.json, PNG plots and report/index.html (one self-contained page, with the 2D map of
+``mapkit view`` embedded: lanes, findings, repairs, the GNSS trace; it opens from disk with no server).
 
 The verdict counts validation findings too ([check.validation]): by default every validation error of the
 build's OpenDRIVE fails the check (``max_errors = 0``); ``max_warnings`` limits warnings, and
@@ -37,7 +38,8 @@ THRESHOLDS = {
 @register_stage("check")
 class CheckStage(Stage):
     inputs = ("xodr",)
-    version = "3"  # 2: compare.json names the xodr by file name; 3: validation findings in the verdict
+    # 2: compare.json names the xodr by file name; 3: validation findings in the verdict; 4: the page's map
+    version = "4"
     description = "validate, georeference round trip, compare / match-trace against the pipeline's references"
 
     def options(self, context: BuildContext) -> dict:
@@ -52,14 +54,15 @@ class CheckStage(Stage):
         results: dict = {"file": xodr.name}
         # validation reads the file once for both its document rules and its map rules, never holding both
         # (each is about a gigabyte for a large map); the map it loaded serves the checks below
-        results["validate"], odr = self._validate(context, xodr, files)
+        results["validate"], odr, findings = self._validate(context, xodr, files)
         results["georeference"] = _roundtrip(odr)
         reference = section.get("reference_network_path")
         if reference is not None:
             results["compare"] = self._compare(context, xodr, reference, files)
         trace = section.get("gnss_trace_path")
+        matched = None
         if trace is not None:
-            results["match"] = self._match(context, odr, trace, files)
+            results["match"], matched = self._match(context, odr, trace, files)
         checks = _validation_checks(results["validate"], section.get("validation") or {})
         checks += _evaluate(results, thresholds)
         results["checks"] = checks
@@ -74,7 +77,7 @@ class CheckStage(Stage):
         path.write_text(json.dumps(results, indent=2) + "\n", encoding="utf-8")
         files["check_report"] = "report/check.json"
         html = context.output_path("report/index.html")
-        html.write_text(_html(results, context), encoding="utf-8")
+        html.write_text(_html(results, context, _page_map(context, odr, findings, matched)), encoding="utf-8")
         files["check_html"] = "report/index.html"
         validate = results["validate"] or {}
         facts = {
@@ -94,8 +97,9 @@ class CheckStage(Stage):
             facts["gnss_matched_fraction"] = match["matched_fraction"]
         return StageOutput(files=files, facts=facts)
 
-    def _validate(self, context, xodr, files) -> tuple[dict | None, object]:
-        """(validation summary, the loaded map); a StageError when the file cannot be read as OpenDRIVE."""
+    def _validate(self, context, xodr, files) -> tuple[dict | None, object, list]:
+        """(validation summary, the loaded map, the findings); a StageError when the file cannot be read as
+        OpenDRIVE."""
         from tavf_mapkit.opendrive import load_opendrive
 
         try:
@@ -103,7 +107,7 @@ class CheckStage(Stage):
         except ImportError as error:
             context.note(f"validate not available: {error}")
             try:
-                return None, load_opendrive(xodr)
+                return None, load_opendrive(xodr), []
             except InputError as unreadable:
                 raise StageError(f"the OpenDRIVE is unreadable: {unreadable}") from None
         try:
@@ -115,7 +119,7 @@ class CheckStage(Stage):
         context.output_path("report/validate.json").write_text(json.dumps(report.to_dict(), indent=2) + "\n",
                                                                encoding="utf-8")
         files["validate_report"] = "report/validate.json"
-        return {**report.summary, **_findings_by_rule(report)}, odr
+        return {**report.summary, **_findings_by_rule(report)}, odr, list(report.findings)
 
     def _compare(self, context, xodr, reference, files) -> dict:
         from tavf_mapkit.accuracy.compare import compare_networks
@@ -133,7 +137,8 @@ class CheckStage(Stage):
         files.update({"compare_report": "report/compare.json", "compare_plot": "report/compare.png"})
         return report
 
-    def _match(self, context, odr, trace_path, files) -> dict:
+    def _match(self, context, odr, trace_path, files) -> tuple[dict, tuple | None]:
+        """(statistics, (trace, MatchResult) for the page's map, or None when the trace could not be matched)"""
         from tavf_mapkit.accuracy.matching import match_trace
         from tavf_mapkit.accuracy.plot import plot_match
         from tavf_mapkit.lanegraph import LaneGraph
@@ -145,14 +150,14 @@ class CheckStage(Stage):
             result = match_trace(odr, trace, graph)
         except InputError as error:
             context.note(f"match-trace skipped: {error}")
-            return {"error": str(error)}
+            return {"error": str(error)}, None
         stats = {"trace": str(trace_path), **result.stats()}
         context.output_path("report/match-trace.json").write_text(json.dumps(stats, indent=2) + "\n",
                                                                   encoding="utf-8")
         plot_match(result, graph, context.output_path("report/match-trace.png"),
                    title=f"{trace_path.name}: fixes by distance to the matched lane (m); unmatched: x")
         files.update({"match_report": "report/match-trace.json", "match_plot": "report/match-trace.png"})
-        return stats
+        return stats, (trace, result)
 
 
 def _roundtrip(odr) -> dict:
@@ -258,8 +263,32 @@ def _evaluate(results: dict, thresholds: dict) -> list[dict]:
     return checks
 
 
-def _html(results: dict, context) -> str:
-    """One small page, images embedded, no external resources: verdict, checks, findings per rule, repairs."""
+def _page_map(context, odr, findings: list, matched) -> tuple[str, str]:
+    """(head, body) of the page's 2D map (tavf_mapkit.view: the same map as ``mapkit view``), or a note
+    when the map cannot be drawn (the check itself stands)."""
+    from tavf_mapkit.errors import MapkitError
+    from tavf_mapkit.view.mapdata import map_data, repair_counts
+    from tavf_mapkit.view.page import static_map
+
+    from tavf_mapkit.pipeline.manifest import OSM_ATTRIBUTION
+    from tavf_mapkit.pipeline.summary import derived_from_osm
+
+    repairs = (context.facts.get("opendrive") or {}).get("repairs")
+    attribution = OSM_ATTRIBUTION if derived_from_osm(context.input_path, context.input_kind) else None
+    try:
+        data = map_data(odr, name=context.name, findings=findings, repairs=repairs, match=matched,
+                        attribution=attribution)
+    except MapkitError as error:
+        context.note(f"report map skipped: {error}")
+        return "", f"<p>The map could not be drawn: {error}</p>"
+    data["repair_counts"] = repair_counts(repairs)
+    data["findings_total"] = len(findings)
+    return static_map(data)
+
+
+def _html(results: dict, context, page_map: tuple[str, str] = ("", "")) -> str:
+    """One page, images and map embedded, no external resources: verdict, the 2D map (lanes, findings,
+    repairs, GNSS), checks, findings per rule, repairs."""
     import base64
     import html
 
@@ -319,10 +348,15 @@ def _html(results: dict, context) -> str:
 <html lang="en"><head><meta charset="utf-8"><title>check: {html.escape(results['file'])}: {status}</title>
 <style>body{{font:14px sans-serif;margin:2em;max-width:70em}}td,th{{padding:.2em .8em;text-align:left}}
 tr.fail td,tr.error td{{color:#b00}}tr.fail td{{font-weight:bold}}tr.pass td:last-child{{color:#070}}
-h1.fail,h1.unchecked{{color:#b00}}h1.pass{{color:#070}}img{{max-width:100%}}</style></head>
+h1.fail,h1.unchecked{{color:#b00}}h1.pass{{color:#070}}img{{max-width:100%}}</style>{page_map[0]}</head>
 <body><h1 class='{status}'>Check of {html.escape(results['file'])}: {status.upper()}</h1>
 <p>{html.escape(summary + because)}; georeference round trip {results['georeference'].get('roundtrip_m')} m.
 Details: check.json, validate.json, compare.json, match-trace.json in this folder.</p>
+<h2>Map</h2>
+<p>Lanes by type, junction outlines, road marks, signals and objects; every validation finding as a marker
+(click it: rule, road, lane, s); the roads the build repaired; the GNSS trace and its matched path. The same
+map with the 3D view and drive replays: <code>mapkit view BUILD [RUN ...]</code>.</p>
+{page_map[1]}
 <h2>Checks</h2>
 <table><tr><th>check</th><th>value</th><th>threshold</th><th></th></tr>{''.join(rows)}</table>
 <h2>Validation findings by rule</h2>
