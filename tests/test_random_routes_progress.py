@@ -20,7 +20,8 @@ from twin.map.lanelines import LaneLines, without_folds, without_loops
 from twin.planning.buffer import PathBuffer
 from twin.planning.chunks import (RESTART, TURNAROUND, LaneCodes, RouteBreak, RouteStalled, expand_route,
                                   route_spans)
-from twin.planning.drivable import corner_cut, min_turn_radius, undrivable_lanes
+from twin.planning.drivable import MAX_CUT, corner_cut, min_turn_radius, total_turning, undrivable_lanes, \
+    worst_cuts
 from twin.planning.random_routes import RandomRoutes
 from twin.sim.build import Build
 
@@ -240,3 +241,62 @@ def test_krautsand_drives_ten_minutes_turning_around_at_its_dead_ends(krautsand_
     assert metrics["distance_m"] > 5000 and metrics["sim_seconds"] == 600.0
     trajectories = [(tmp_path / name / "trajectory.csv").read_bytes() for name in ("a", "b")]
     assert trajectories[0] == trajectories[1]
+
+
+def _lines_one_by_one(graph, keys):
+    """The lane lines as LaneLines built them before its batch shortcuts: every line through both filters,
+    arc length by a cumsum of the line alone."""
+    found = {}
+    for key, (points, _) in graph.centerlines(keys).items():
+        points = without_folds(without_loops(points))
+        along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points[:, :2], axis=0), axis=1))])
+        found[key] = (points, along)
+    return found
+
+
+def test_batched_lane_lines_are_the_one_by_one_lines_to_the_bit(berlin_build):
+    """LaneLines runs the loop and fold filters only on lines that may have one and sums arc lengths for
+    all lines at once; every line must still be the one the filters give, bit for bit (routes and
+    trajectories depend on it). Berlin's Grosser Stern has folded outer lanes, so both paths are taken."""
+    graph = LaneGraph.from_opendrive(load_opendrive(Build.open(berlin_build).xodr))
+    keys = sorted(graph.keys)
+    lines = LaneLines(graph)
+    lines.preload(keys)
+    expected = _lines_one_by_one(graph, keys)
+    raw = graph.centerlines(keys)
+    changed = [k for k in keys if len(raw[k][0]) != len(expected[k][0])]
+    assert changed, "no folded line on this map: the filter path is not exercised"
+    for key in keys:
+        points, along = expected[key]
+        assert np.array_equal(lines[key].points, points) and np.array_equal(lines[key].along, along), key
+
+
+def test_bends_too_gentle_to_matter_are_not_measured_but_decide_the_same():
+    """worst_cuts measures only lines whose total turning could make the car cut by more than the limit;
+    its decisions are those of measuring every line, its measured values exact, its bounds never below
+    the true cut."""
+    rng = np.random.default_rng(7)
+    radius = min_turn_radius()
+    lines = []
+    for i in range(300):
+        n = int(rng.integers(2, 60))
+        step = rng.uniform(0.05, 2.0, n)
+        # gentle wiggles, arcs, kinks and hairpins, some with repeated points and near-repeats
+        turn = rng.normal(0.0, [0.002, 0.05, 0.3, 1.5][i % 4], n)
+        heading = np.cumsum(turn)
+        xy = np.cumsum(np.column_stack([step * np.cos(heading), step * np.sin(heading)]), axis=0)
+        if i % 7 == 0:
+            xy = np.repeat(xy, 2, axis=0)
+        lines.append(xy)
+    lane = np.repeat(np.arange(len(lines)), [len(p) for p in lines])
+    points = np.concatenate(lines)
+    every = np.zeros(len(lines))
+    np.maximum.at(every, lane, corner_cut(lane, points, radius))
+    for limit in (0.05, MAX_CUT, 2.0):
+        worst = worst_cuts(lane, points, radius, limit)
+        assert np.array_equal(worst > limit, every > limit)
+        assert np.all(worst >= every - 1e-12)
+        turning = np.minimum(total_turning(lane, points), 0.9 * np.pi)
+        measured = radius * (1 / np.cos(0.5 * turning) - 1) > 0.999 * limit
+        assert 0 < measured.sum() < len(lines)  # both paths taken
+        assert np.allclose(worst[measured], every[measured], rtol=0, atol=1e-12)

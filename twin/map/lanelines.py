@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tavf_mapkit.lanegraph import LaneGraph, LaneKey
+from tavf_mapkit.mesh.exact import run_cumsum
 
 
 @dataclass(frozen=True, eq=False)
@@ -128,9 +129,45 @@ class LaneLines:
         return line
 
     def preload(self, keys) -> None:
-        """Build the lines of many lanes at once (one evaluation of the map instead of one per lane)."""
-        missing = [k for k in keys if k not in self._cache]
-        for key, (points, _) in self.graph.centerlines(missing, self.step).items():
-            points = without_folds(without_loops(points))
-            along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points[:, :2], axis=0), axis=1))])
-            self._cache[key] = LaneLine(key, points, along, self.graph.speed_limit(key))
+        """Build the lines of many lanes at once (one evaluation of the map instead of one per lane).
+
+        ``without_loops`` and ``without_folds`` run only on the lines that may have a loop or a fold (a region
+        has tens of thousands of lanes, nearly all without): the same lines, to the bit."""
+        missing = list(dict.fromkeys(k for k in keys if k not in self._cache))
+        if not missing:
+            return
+        found = self.graph.centerlines(missing, self.step)
+        lines = [found[k][0] for k in missing]
+        counts = np.array([len(p) for p in lines])
+        points = np.concatenate(lines)
+        lane = np.repeat(np.arange(len(missing)), counts)
+        suspect = _may_loop_or_fold(lane, points, len(missing))
+        for i in np.flatnonzero(suspect).tolist():
+            lines[i] = without_folds(without_loops(lines[i]))
+        if np.any(suspect):
+            counts = np.array([len(p) for p in lines])
+            points = np.concatenate(lines)
+            lane = np.repeat(np.arange(len(missing)), counts)
+        # arc length per line: each line's own sequential sum, as a cumsum of that line alone would give
+        step = np.linalg.norm(np.diff(points[:, :2], axis=0), axis=1)
+        along = run_cumsum(np.r_[0.0, np.where(lane[1:] == lane[:-1], step, 0.0)], lane)
+        along = np.split(along, np.cumsum(counts)[:-1])
+        for key, line, distance in zip(missing, lines, along):
+            # a line of its own (not a view into the whole batch), as the fold filter's copy was
+            self._cache[key] = LaneLine(key, np.ascontiguousarray(line), distance, self.graph.speed_limit(key))
+
+
+def _may_loop_or_fold(lane: np.ndarray, points: np.ndarray, count: int) -> np.ndarray:
+    """Per line (runs of ``lane`` 0 .. count-1): may ``without_loops`` or ``without_folds`` change it? A loop
+    needs half a circle of turning, a fold a repeated point or a cusp; the margins make this a superset."""
+    d = np.diff(points[:, :2], axis=0)
+    same = lane[1:] == lane[:-1]
+    repeated = same & (np.hypot(d[:, 0], d[:, 1]) <= 1e-9)
+    heading = np.arctan2(d[:, 1], d[:, 0])
+    turn = np.abs((np.diff(heading) + np.pi) % (2 * np.pi) - np.pi)
+    inside = same[1:] & same[:-1]
+    owner = lane[1:-1][inside]
+    turning = np.bincount(owner, weights=turn[inside], minlength=count)
+    cusp = np.bincount(owner, weights=turn[inside] > CUSP - 1e-6, minlength=count) > 0
+    has_repeat = np.bincount(lane[1:][repeated], minlength=count) > 0
+    return (turning >= np.pi * (1 - 1e-6)) | cusp | has_repeat

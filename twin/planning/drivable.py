@@ -15,6 +15,11 @@ Two things a car cannot follow:
   corner 2 m, a junction turn of 5 m radius nothing. Lanes and steps that cut more than ``MAX_CUT`` are
   not driven.
 
+Measuring is the costly part of a map's start (every lane and every step of a region), and most lanes
+barely turn: a line whose headings turn by T in all can be cut by at most R (1 / cos(T / 2) - 1) (the
+window's heading change never exceeds T, the car's radius never exceeds R), so ``worst_cuts`` measures only
+the lines whose bound exceeds ``MAX_CUT`` and the decision for every other line is the same.
+
 A step from lane a to lane b (a "transition") may pass sub-metre lanes, which add no points to a path
 (``DEGENERATE_LANE``), and a gap the path buffer bridges with a diagonal (``join_cut``); it is measured on
 the polyline the path will have: the end of a without what the diagonal replaces, then the start of b.
@@ -28,6 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tavf_mapkit.lanegraph import LaneGraph, LaneKey
+from tavf_mapkit.mesh.exact import run_cumsum
 from tavf_mapkit.mesh.swept_path import wheelbase_curvature
 from twin.control.pid import CARLA_LIMITS, ActuatorLimits
 from twin.map.lanelines import LaneLines
@@ -59,12 +65,10 @@ def corner_cut(lane: np.ndarray, points: np.ndarray, radius: float) -> np.ndarra
     distinct = (step > JOIN_GAP) | np.r_[True, lane[1:] != lane[:-1]]
     if not np.all(distinct):
         return corner_cut(lane[distinct], points[distinct], radius)[np.cumsum(distinct) - 1]
-    step[0] = 0.0
     first = np.r_[True, lane[1:] != lane[:-1]]
     step[first] = 0.0
-    total = np.cumsum(step)
-    arc = total - np.maximum.accumulate(np.where(first, total, 0.0))  # metres from the run's start
     run = np.cumsum(first) - 1
+    arc = run_cumsum(step, run)  # metres from the run's start, each run's own sums (whatever runs go with it)
     length = np.zeros(run[-1] + 1 if len(run) else 0)
     np.maximum.at(length, run, arc)
     cut = np.zeros(len(points))
@@ -75,6 +79,35 @@ def corner_cut(lane: np.ndarray, points: np.ndarray, radius: float) -> np.ndarra
         own_radius = 1.0 / np.maximum(curvature, 1e-9)
         cut = np.maximum(cut, np.maximum(radius - own_radius, 0.0) * (1.0 / np.cos(0.5 * turn) - 1.0))
     return cut
+
+
+def total_turning(lane: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Per run of equal ``lane`` (runs numbered 0, 1, ... in order): the sum of the absolute heading changes
+    between its consecutive segments, radians. Dropping a vertex never adds turning, so this bounds the
+    turning of the thinned lines ``corner_cut`` measures too."""
+    run = np.cumsum(np.r_[True, lane[1:] != lane[:-1]]) - 1
+    d = np.diff(points, axis=0)
+    heading = np.arctan2(d[:, 1], d[:, 0])
+    inside = (run[1:-1] == run[:-2]) & (run[2:] == run[1:-1])  # consecutive segments of one run
+    turn = np.abs(_wrap(np.diff(heading)))
+    return np.bincount(run[1:-1][inside], weights=turn[inside], minlength=run[-1] + 1 if len(run) else 0)
+
+
+def worst_cuts(lane: np.ndarray, points: np.ndarray, radius: float, limit: float) -> np.ndarray:
+    """Per run of equal ``lane`` (runs numbered 0, 1, ... in order): the largest ``corner_cut``; for a run that
+    turns too little to cut by more than ``limit`` (see the module docstring), that bound instead, at most
+    ``limit``: only the comparison with ``limit`` is exact for those."""
+    run = np.cumsum(np.r_[True, lane[1:] != lane[:-1]]) - 1
+    count = run[-1] + 1 if len(run) else 0
+    # corner_cut caps a window's heading change at 0.9 pi; a thousandth below the limit for rounding
+    turning = np.minimum(total_turning(lane, points), 0.9 * np.pi)
+    worst = radius * (1.0 / np.cos(0.5 * turning) - 1.0)
+    measure = worst > 0.999 * limit
+    worst[measure] = 0.0
+    picked = measure[run]
+    if np.any(picked):
+        np.maximum.at(worst, run[picked], corner_cut(run[picked], points[picked], radius))
+    return worst
 
 
 def _wrap(angle):
@@ -101,8 +134,7 @@ def undrivable_lanes(graph: LaneGraph, lines: LaneLines, radius: float | None = 
     points = [lines[k].points[:, :2] for k in measured]
     lane = np.repeat(np.arange(len(measured)), [len(p) for p in points])
     points = np.concatenate(points)
-    cut = np.zeros(len(measured))
-    np.maximum.at(cut, lane, corner_cut(lane, points, radius))
+    cut = worst_cuts(lane, points, radius, max_cut)
     d = np.diff(points, axis=0)
     inside = (lane[1:-1] == lane[:-2]) & (lane[2:] == lane[1:-1])  # consecutive segments of one lane
     turn = np.bincount(lane[1:-1][inside], weights=_wrap(np.diff(np.arctan2(d[:, 1], d[:, 0])))[inside],
@@ -171,8 +203,7 @@ def lane_transitions(graph: LaneGraph, lines: LaneLines, undrivable: dict[LaneKe
     # the polyline of every step, all measured at once
     polylines = [_step_polyline(lines, a, b) for a, b in candidates]
     lane = np.repeat(np.arange(len(candidates)), [len(p) for p in polylines])
-    cut = np.zeros(len(candidates))
-    np.maximum.at(cut, lane, corner_cut(lane, np.concatenate(polylines), radius))
+    cut = worst_cuts(lane, np.concatenate(polylines), radius, max_cut)
     for (a, b), worst in zip(candidates, cut):
         if abs(_wrap(_headings(lines, b)[0] - _headings(lines, a)[1])) > U_TURN:
             result.dropped[a, b] = "u-turn"
