@@ -87,6 +87,18 @@ def test_the_wheel_installs_and_builds_the_sample_from_another_folder(tmp_path):
     assert manifest["stages"][1]["options"]["profile"] == "carla"
     assert sorted(p.name for p in elsewhere.iterdir()) == [".out.lock", "out"]  # no staging folder left
 
+    # the view's package data: the report page inlines the vendored Leaflet and the map script; the live page
+    # of mapkit view loads three.js from the package
+    page = (folder / "report" / "index.html").read_text()
+    assert "window.MAPKIT_DATA = {" in page and "Leaflet 1.9.4" in page
+    import zipfile
+
+    names = set(zipfile.ZipFile(wheel).namelist())
+    for relative in ("static/index.html", "static/app.js", "static/scene3d.js", "static/vendor/leaflet/LICENSE",
+                     "static/vendor/three/build/three.module.min.js", "static/vendor/three/LICENSE",
+                     "static/vendor/three/examples/jsm/loaders/GLTFLoader.js"):
+        assert f"tavf_mapkit/view/{relative}" in names, relative
+
     # the other package data: both profiles and the accuracy baselines
     run([mapkit, "build", SAMPLE, "-o", "full", "--profile", "full", "-q"], cwd=elsewhere)
     shown = run([mapkit, "baseline", "show"], cwd=elsewhere).stdout
