@@ -173,3 +173,24 @@ def test_output_writes_the_static_page(sample_build_dir, tmp_path):
     html = out.read_text()
     data = json.loads(html.split("window.MAPKIT_DATA = ", 1)[1].split(";\nwindow.mapkit", 1)[0])
     assert len(data["layers"]["lanes"]["features"]) == summary["lanes"]
+
+
+def test_gnss_trace_and_matched_path(sample_build_dir, sample_run):
+    """A noise-free GNSS trace of a drive: every fix on the page, matched, and on the matched path drawn."""
+    from tavf_mapkit.opendrive import load_opendrive
+    from tavf_mapkit.view.mapdata import map_data, match_gnss
+
+    odr = load_opendrive(next(sample_build_dir.glob("*.xodr")))
+    trace, result = match_gnss(odr, sample_run / "gnss.csv")
+    layers = map_data(odr, name="sample", match=(trace, result))["layers"]
+    fixes = layers["gnss"]["features"]
+    assert len(fixes) == len(result) > 10
+    assert all(f["properties"]["matched"] and f["properties"]["distance_m"] < 0.5 for f in fixes)
+    assert len(layers["matched"]["features"]) == len(set(result.lane_route)) > 0
+    # back in the local frame, every fix lies on the drawn path (within the drive's lateral error)
+    lon_lat = np.array([f["geometry"]["coordinates"] for f in fixes])
+    x, y = odr.georeference.wgs84_to_local(lon_lat[:, 0], lon_lat[:, 1])
+    np.testing.assert_allclose(np.column_stack([x, y]), np.column_stack([result.x, result.y]), atol=0.02)
+    path = shapely.MultiLineString([np.column_stack(odr.georeference.wgs84_to_local(*np.array(
+        f["geometry"]["coordinates"]).T)) for f in layers["matched"]["features"]])
+    assert max(path.distance(shapely.Point(p)) for p in zip(x, y)) < 0.5
