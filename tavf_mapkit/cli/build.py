@@ -5,11 +5,13 @@ from __future__ import annotations
 import json
 import shlex
 import sys
+from contextlib import ExitStack
 from pathlib import Path
 
 import click
 
 from tavf_mapkit.cli.options import area_from, bbox_option, json_option, polygon_option
+from tavf_mapkit.cluster import check_cluster_options, wants_cluster
 from tavf_mapkit.progress import progress_line
 
 
@@ -32,12 +34,18 @@ from tavf_mapkit.progress import progress_line
               help="Keep netconvert's OpenDRIVE as written, for comparison ([opendrive] repair = false); only "
                    "geometry no build can use (vertices off Earth, absurd lengths) is still repaired.")
 @click.option("--force", is_flag=True, help="Rerun every stage even if its inputs and options are unchanged.")
+@click.option("--workers", type=int, default=None, metavar="N",
+              help="Run the tile stages (mesh, collision) on a local Dask cluster of N processes (N > 1; 1: this "
+                   "process). The build is byte-identical to a single-process one. Needs tavf-mapkit[distributed].")
+@click.option("--scheduler", default=None, metavar="tcp://HOST:PORT",
+              help="Run the tile stages on the workers of a running Dask scheduler (no shared filesystem needed; "
+                   "docs/distributed.md).")
 @click.option("-q", "--quiet", is_flag=True,
               help="No progress lines (on a terminal, long stages otherwise show units done and time left).")
 @json_option
 def build(input_path: Path, pipeline_file: Path | None, bbox, polygon: Path | None, profile: str | None,
           crs: str | None, driving_side: str | None, output: Path | None, no_repair: bool, force: bool,
-          quiet: bool, as_json: bool) -> None:
+          workers: int | None, scheduler: str | None, quiet: bool, as_json: bool) -> None:
     """Build a driving-simulation world from OSM, a SUMO network or an OpenDRIVE file.
 
     \b
@@ -47,6 +55,8 @@ def build(input_path: Path, pipeline_file: Path | None, bbox, polygon: Path | No
     $ mapkit build Town04.xodr -o build/town04
     $ mapkit build london.osm.pbf --driving-side left
     $ mapkit build network.net.xml.gz -o build/raw --no-repair
+    $ mapkit build maribor.osm.gz --workers 2
+    $ mapkit build region.osm.pbf --scheduler tcp://10.0.0.5:8786
 
     \b
     Stages: extract -> netconvert -> opendrive -> mesh -> collision -> check -> report
@@ -93,9 +103,16 @@ def build(input_path: Path, pipeline_file: Path | None, bbox, polygon: Path | No
             notice(line)
 
     command = shlex.join(["mapkit", *sys.argv[1:]]) if sys.argv and sys.argv[0].endswith("mapkit") else None
+    check_cluster_options(workers, scheduler)
     try:
-        result = run_build(input_path, config, output, force=force, progress=progress, command=command,
-                           notice=notice, meter=live.task if live is not None else None)
+        with ExitStack() as stack:
+            fanout = None
+            if wants_cluster(workers, scheduler):  # else Dask is never imported
+                from tavf_mapkit.cluster import connect
+
+                fanout = stack.enter_context(connect(workers=workers, scheduler=scheduler))
+            result = run_build(input_path, config, output, force=force, progress=progress, command=command,
+                               notice=notice, meter=live.task if live is not None else None, fanout=fanout)
     finally:
         if live is not None:
             live.clear()  # an error or the summary starts on a clean line

@@ -108,14 +108,22 @@ def write_materials(folder: Path, materials) -> None:
 
 def write_tile(folder: Path, fmt: str, grid: TileGrid, index, members) -> dict:
     """Write one tile file from its (layer, material, mesh) members (in group order); return its mesh.json entry."""
+    relative, data, entry = tile_file(fmt, grid, index, members)
+    write_bytes_atomic(Path(folder) / relative, data)
+    return entry
+
+
+def tile_file(fmt: str, grid: TileGrid, index, members) -> tuple[str, bytes, dict]:
+    """(path relative to the mesh folder, bytes, mesh.json entry) of one tile file from its (layer, material,
+    mesh) members (in group order)."""
     counts = {"lanes": 0, "marks": 0, "solids": 0}
     for layer, _, part in members:
         counts[layer] += len(part.faces)
     relative = f"tiles/{tile_name(index)}.{fmt}"
     data = _glb(members, grid.origin) if fmt == "glb" else _obj(members, grid.origin).encode("utf-8")
-    write_bytes_atomic(Path(folder) / relative, data)
-    return {"file": relative, "index": [int(index[0]), int(index[1])], "bounds": grid.tile_bounds(index),
-            "triangles": counts, "materials": sorted({material for _, material, _ in members})}
+    return relative, data, {"file": relative, "index": [int(index[0]), int(index[1])],
+                            "bounds": grid.tile_bounds(index), "triangles": counts,
+                            "materials": sorted({material for _, material, _ in members})}
 
 
 def mesh_summary(fmt: str, grid: TileGrid, tile_entries: list, triangles: dict, materials, extra: dict) -> dict:

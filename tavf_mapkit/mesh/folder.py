@@ -17,10 +17,11 @@ DEFAULT_TILE = 100.0
 def write_mesh_folder(odr, folder: str | Path, eps: float = DEFAULT_EPS, fmt: str = "glb",
                       tile_size: float = DEFAULT_TILE, osm_path: Path | None = None, solids: bool = True,
                       preview: bool = True, batch_work: float = BATCH_WORK,
-                      progress: Progress | None = None) -> dict:
+                      progress: Progress | None = None, fanout=None) -> dict:
     """Mesh the map and write ``folder`` (tiles/, labelled/, mesh.json, preview.png); return mesh.json's content.
     ``batch_work``: metres of lane meshed at once (memory grows with it; the files do not depend on it).
-    ``progress``: told of each pass's units done (``tavf_mapkit.progress``)."""
+    ``progress``: told of each pass's units done (``tavf_mapkit.progress``). ``fanout``: a ``cluster.FileFanout``
+    of the map's OpenDRIVE file, to mesh on a Dask cluster (``mesh.remote``; the same files)."""
     extra = {}
     if odr.georeference is not None:
         from dataclasses import asdict
@@ -29,7 +30,7 @@ def write_mesh_folder(odr, folder: str | Path, eps: float = DEFAULT_EPS, fmt: st
         extra["georeference"] = {"proj": header.geo_reference,
                                  "offset": None if header.offset is None else asdict(header.offset)}
     return write_tiled_mesh(odr, folder, eps, fmt, tile_size, osm_path=osm_path, solids=solids, preview=preview,
-                            batch_work=batch_work, extra=extra, progress=progress)
+                            batch_work=batch_work, extra=extra, progress=progress, fanout=fanout)
 
 
 def replace_folder(target: Path, make) -> dict:

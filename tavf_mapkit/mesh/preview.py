@@ -46,19 +46,40 @@ class PreviewCanvas:
 
     def paint(self, layer: str, material: str, code: int, mesh) -> None:
         """Paint the triangles of one material (``code``: its kind or colour code, which orders materials)."""
-        from PIL import Image, ImageDraw
-
         if self.empty or not self.paints(layer) or not len(mesh.faces):
             return
-        key = (LAYERS.index(layer), int(code))
-        if key not in self.masks:
-            mask = Image.new("L", self.size, 0)
-            self.masks[key] = (material, mask, ImageDraw.Draw(mask))
-        draw = self.masks[key][2]
+        draw = self._mask((LAYERS.index(layer), int(code)), material)[1]
         xy = (mesh.vertices[:, :2] - self.low) * self.scale + self.margin
         xy[:, 1] = self.size[1] - xy[:, 1]  # north up
         for triangle in xy[mesh.faces].tolist():
             draw.polygon([tuple(p) for p in triangle], fill=255)
+
+    def _mask(self, key: tuple, material: str):
+        from PIL import Image, ImageDraw
+
+        if key not in self.masks:
+            mask = Image.new("L", self.size, 0)
+            self.masks[key] = (material, mask, ImageDraw.Draw(mask))
+        return self.masks[key][1:]
+
+    def painted(self) -> list:
+        """(key, material, box, bytes) of every mask, cropped to what was painted: the paint of a canvas of the
+        same map made elsewhere (a Dask task, ``mesh.remote``), for ``add_painted``. Masks are all-or-nothing
+        (255 where any triangle covers a pixel), so adding them in any order gives the same image."""
+        out = []
+        for key, (material, mask, _) in sorted(self.masks.items()):
+            box = mask.getbbox()
+            if box is not None:
+                out.append((key, material, box, mask.crop(box).tobytes()))
+        return out
+
+    def add_painted(self, painted: list) -> None:
+        from PIL import Image, ImageChops
+
+        for key, material, box, data in painted:
+            mask = self._mask(key, material)[0]
+            part = Image.frombytes("L", (box[2] - box[0], box[3] - box[1]), data)
+            mask.paste(ImageChops.lighter(mask.crop(box), part), box)
 
     def render(self):
         from PIL import Image

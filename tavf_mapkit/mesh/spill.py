@@ -131,13 +131,21 @@ class ChunkStore:
         self._index: dict = defaultdict(list)
 
     def add(self, key, arrays: dict) -> None:
-        # pickle: a private scratch file read back only by this process, and much faster than .npz for
-        # thousands of small chunks
-        data = pickle.dumps({name: value for name, value in arrays.items() if value is not None},
-                            protocol=pickle.HIGHEST_PROTOCOL)
+        self.add_blob(key, chunk_bytes(arrays))
+
+    def add_blob(self, key, data: bytes) -> None:
+        """A chunk already in its stored form (``chunk_bytes``: made by a task elsewhere)."""
         offset = self._file.seek(0, os.SEEK_END)
         self._file.write(data)
         self._index[key].append((offset, len(data)))
+
+    def blobs(self, key) -> list[bytes]:
+        """The stored form of a key's chunks, in the order they were added."""
+        out = []
+        for offset, length in self._index.get(key, ()):
+            self._file.seek(offset)
+            out.append(self._file.read(length))
+        return out
 
     def keys(self) -> list:
         return sorted(self._index)
@@ -146,12 +154,41 @@ class ChunkStore:
         return key in self._index
 
     def get(self, key) -> list[dict]:
-        out = []
-        for offset, length in self._index.get(key, ()):
-            self._file.seek(offset)
-            out.append(pickle.loads(self._file.read(length)))
-        return out
+        return [pickle.loads(data) for data in self.blobs(key)]
 
     def close(self) -> None:
         self._file.close()
         self.path.unlink(missing_ok=True)
+
+
+def chunk_bytes(arrays: dict) -> bytes:
+    """The stored form of a chunk. Pickle: private scratch data read back only by the mesher (in this process, or
+    the client of a Dask task that made it), and much faster than .npz for thousands of small chunks."""
+    return pickle.dumps({name: value for name, value in arrays.items() if value is not None},
+                        protocol=pickle.HIGHEST_PROTOCOL)
+
+
+class MemoryStore:
+    """A ChunkStore's interface in memory: what a Dask task collects to send back (``add``), or the chunks it
+    was sent (``MemoryStore(blobs)``, {key: [stored chunks]})."""
+
+    def __init__(self, blobs: dict | None = None):
+        self._blobs: dict = defaultdict(list, blobs or {})
+        self.records: list = []  # (key, stored chunk) in the order added
+
+    def add(self, key, arrays: dict) -> None:
+        data = chunk_bytes(arrays)
+        self._blobs[key].append(data)
+        self.records.append((key, data))
+
+    def keys(self) -> list:
+        return sorted(key for key, chunks in self._blobs.items() if chunks)
+
+    def __contains__(self, key) -> bool:
+        return bool(self._blobs.get(key))
+
+    def blobs(self, key) -> list[bytes]:
+        return list(self._blobs.get(key, ()))
+
+    def get(self, key) -> list[dict]:
+        return [pickle.loads(data) for data in self._blobs.get(key, ())]

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from tavf_mapkit.fileutil import write_bytes_atomic, write_text_atomic
-from tavf_mapkit.mesh.export import check_export_options, mesh_summary, write_materials, write_tile
+from tavf_mapkit.mesh.export import check_export_options, mesh_summary, write_materials
 from tavf_mapkit.mesh.labelled import KIND_CODE, SURFACE_KINDS, LabelledMesh, npz_bytes
 from tavf_mapkit.mesh.materials import mark_material
 from tavf_mapkit.mesh.spill import ChunkStore, Keyed, from_arrays, keyed_by_group, merge
@@ -69,19 +69,42 @@ class _Tally:
         if not len(vertices):
             return
         low, high = vertices[:, :2].min(axis=0), vertices[:, :2].max(axis=0)
+        self._bounds(low, high)
+
+    def _bounds(self, low, high) -> None:
         self.low = low if self.low is None else np.minimum(self.low, low)
         self.high = high if self.high is None else np.maximum(self.high, high)
+
+    def absorb(self, other: _Tally) -> None:
+        """Add what a task tallied on its own (``mesh.remote``); absorbed in the order the serial passes would
+        have made them, the totals and lists come out the same."""
+        if other.low is not None:
+            self._bounds(other.low, other.high)
+        self.kinds = self.kinds + other.kinds
+        self.marks += other.marks
+        self.solid_faces += other.solid_faces
+        self.materials |= other.materials
+        self.max_deviation = max(self.max_deviation, other.max_deviation)
+        self.discontinuities += other.discontinuities
+        self.unresolved += other.unresolved
+        self.junctions += other.junctions
+        self.reach = max(self.reach, other.reach)
+        self.cluster_box.update(other.cluster_box)
+        for kind, count in other.solid_counts.items():
+            self.solid_counts[kind] += count
+        self.skipped += other.skipped
 
 
 def write_tiled_mesh(odr, folder: str | Path, eps: float, fmt: str = "glb", tile_size: float = 100.0,
                      osm_path: Path | None = None, solids: bool = True, preview: bool = True,
                      exports: bool = True, batch_work: float = BATCH_WORK, extra: dict | None = None,
-                     origin=None, progress: Progress | None = None) -> dict:
+                     origin=None, progress: Progress | None = None, fanout=None) -> dict:
     """Mesh the map into ``folder``: tiles/ and road marks (unless ``exports`` is off), labelled/ (surface and
     solids per tile, for the collision world), mesh.json and preview.png. Returns mesh.json's content.
     ``origin``: the origin to use instead of the middle of the meshes' bounds (e.g. another stage's).
     ``progress`` hears of each pass: roads meshed, junction clusters curbed, building groups placed, tiles
-    written."""
+    written. ``fanout``: a ``cluster.FileFanout`` of this map's OpenDRIVE file, to run the batches, the junction
+    clusters' curbs and the tiles as Dask tasks (``mesh.remote``; the files come out the same)."""
     from tavf_mapkit.mesh.units import mesh_units
 
     check_export_options(fmt, tile_size)
@@ -99,21 +122,30 @@ def write_tiled_mesh(odr, folder: str | Path, eps: float, fmt: str = "glb", tile
     tally = _Tally()
     spill_grid = TileGrid.spill(float(tile_size))
     try:
+        if fanout is not None:
+            from tavf_mapkit.mesh import remote
         roads_done, report = 0, reporter(progress, "roads")
-        for batch in units.batches(spill_grid, batch_work):
-            report(roads_done, len(odr.roads))
-            roads = units.roads_of_units(batch)
-            _mesh_batch(odr, units, roads, eps, spill_grid, stores, tally, solids, exports)
-            roads_done += len(roads)
+        if fanout is None:
+            for batch in units.batches(spill_grid, batch_work):
+                report(roads_done, len(odr.roads))
+                roads = units.roads_of_units(batch)
+                _mesh_batch(odr, units, roads, eps, spill_grid, stores, tally, solids, exports)
+                roads_done += len(roads)
+        else:
+            roads_done = remote.mesh_batches(fanout, units, batch_work, eps, spill_grid, stores, tally, solids,
+                                             exports, report, len(odr.roads))
         report(roads_done, len(odr.roads))
         if solids:
             surface = _SurfaceTiles(stores["surface"], spill_grid, tally.reach)
-            _junction_curbs(odr, units, surface, stores, tally, reporter(progress, "junction clusters"))
+            if fanout is None:
+                _junction_curbs(odr, units, surface, stores, tally, reporter(progress, "junction clusters"))
+            else:
+                remote.junction_curbs(fanout, surface, stores, tally, reporter(progress, "junction clusters"))
             _buildings(odr, units, osm_path, surface, stores, tally, reporter(progress, "building groups"))
         origin = origin_of_bounds(tally.low, tally.high) if origin is None else tuple(float(v) for v in origin)
         grid = TileGrid(origin, float(tile_size))
         summary = _write_tiles(odr, folder, fmt, grid, stores, tally, preview, exports, eps, osm_path, solids,
-                               extra or {}, reporter(progress, "tiles"))
+                               extra or {}, reporter(progress, "tiles"), fanout)
     finally:
         for store in stores.values():
             store.close()
@@ -298,25 +330,37 @@ class _SurfaceTiles:
 def _junction_curbs(odr, units, surface: _SurfaceTiles, stores, tally: _Tally, report: Report) -> None:
     """Pass 2: the curbs of every junction cluster, from the surface around it; clusters in groups that share
     one sampling of the lanes around them (a cluster's curbs depend on its own surroundings only)."""
-    from tavf_mapkit.mesh.solid_junction_curbs import (
-        CONTEXT_REACH,
-        ROAD_REACH,
-        CurbSurroundings,
-        cluster_curb_solids,
-    )
+    from tavf_mapkit.mesh.solid_junction_curbs import CONTEXT_REACH
 
-    junction_rank = {j: k for k, j in enumerate(sorted(junction.id for junction in odr.junctions))}
-    # by the spill tile of a cluster's south-west corner, row by row (clusters near each other share tiles)
-    corner_tile = {u: surface.grid.tile_of_point(*box[:2]) for u, box in tally.cluster_box.items()}
-    clusters = sorted(tally.cluster_box, key=lambda u: corner_tile[u][::-1])
+    junction_rank = junction_ranks(odr)
+    clusters = clusters_in_order(surface.grid, tally.cluster_box)
     for start in range(0, len(clusters), CLUSTER_GROUP):
         group = clusters[start:start + CLUSTER_GROUP]
-        roads = np.unique(np.concatenate([units.roads_near(tally.cluster_box[u], ROAD_REACH) for u in group]))
-        around = CurbSurroundings(odr, roads)
+        around = curb_surroundings(odr, units, group, tally.cluster_box)
         for k, unit in enumerate(group):
             report(start + k, len(clusters))
             _cluster_curbs(odr, units, unit, surface, around, junction_rank, stores, tally, CONTEXT_REACH)
     report(len(clusters), len(clusters))
+
+
+def junction_ranks(odr) -> dict:
+    """junction id -> its rank among the map's junction ids (the key of its curbs)."""
+    return {j: k for k, j in enumerate(sorted(junction.id for junction in odr.junctions))}
+
+
+def clusters_in_order(spill_grid: TileGrid, cluster_box: dict) -> list:
+    """Junction clusters by the spill tile of their south-west corner, row by row (clusters near each other
+    share tiles); ties keep the order in which the batches found them."""
+    corner_tile = {u: spill_grid.tile_of_point(*box[:2]) for u, box in cluster_box.items()}
+    return sorted(cluster_box, key=lambda u: corner_tile[u][::-1])
+
+
+def curb_surroundings(odr, units, group, cluster_box: dict):
+    """One sampling of the lanes around a group of junction clusters (``CurbSurroundings``)."""
+    from tavf_mapkit.mesh.solid_junction_curbs import ROAD_REACH, CurbSurroundings
+
+    roads = np.unique(np.concatenate([units.roads_near(cluster_box[u], ROAD_REACH) for u in group]))
+    return CurbSurroundings(odr, roads)
 
 
 def _cluster_curbs(odr, units, unit, surface, around, junction_rank, stores, tally, reach) -> None:
@@ -435,9 +479,9 @@ def _ground_heights(surface: _SurfaceTiles, points: np.ndarray) -> np.ndarray:
 # -- pass 4: the final grid ----------------------------------------------------------------------------------
 
 def _write_tiles(odr, folder: Path, fmt, grid: TileGrid, stores, tally: _Tally, preview: bool, exports: bool,
-                 eps: float, osm_path, solids: bool, extra: dict, report: Report) -> dict:
+                 eps: float, osm_path, solids: bool, extra: dict, report: Report, fanout=None) -> dict:
     from tavf_mapkit.mesh.marks import MARK_COLOURS
-    from tavf_mapkit.mesh.preview import PreviewCanvas, group_code
+    from tavf_mapkit.mesh.preview import PreviewCanvas
 
     spill_grid = TileGrid.spill(grid.size)
     layers_of = {name: _Regrid(stores[name], grid, spill_grid, name) for name in stores}
@@ -448,30 +492,26 @@ def _write_tiles(odr, folder: Path, fmt, grid: TileGrid, stores, tally: _Tally, 
     tile_entries, labelled, indices = [], [], []
     # block by block, so that the spill tiles around a block are read once; files and lists do not depend on it
     every = set().union(*(regrid.tiles() for regrid in layers_of.values()))
-    for done, index in enumerate(sorted(every, key=lambda t: (t[1] // BLOCK, t[0] // BLOCK, t[1], t[0]))):
+    squares = sorted(every, key=lambda t: (t[1] // BLOCK, t[0] // BLOCK, t[1], t[0]))
+    if fanout is None:
+        products = (tile_product(index, layers_of, grid, fmt, exports, canvas) for index in squares)
+    else:
+        from tavf_mapkit.mesh.remote import tile_products
+
+        products = tile_products(fanout, squares, layers_of, grid, fmt, exports, canvas, tally)
+    report(0, len(every))
+    for done, product in enumerate(products, 1):
+        tally.materials.update(product.materials)
+        if product.tile is not None:
+            relative, data, entry = product.tile
+            write_bytes_atomic(folder / relative, data)
+            tile_entries.append(entry)
+        if product.labelled is not None:
+            name = tile_name(product.index)
+            write_bytes_atomic(folder / LABELLED / f"{name}.npz", product.labelled)
+            labelled.append(name)
+            indices.append([int(product.index[0]), int(product.index[1])])
         report(done, len(every))  # squares that may hold a piece: more than the tiles written
-        layers = [(layer, merge(layers_of[name].parts(index)))
-                  for layer, name in (("lanes", "surface"), ("marks", "marks"), ("solids", "solids"))]
-        members = []
-        for layer, keyed in layers:
-            if keyed is None:
-                continue
-            mesh = keyed.mesh
-            codes = mesh.colour if layer == "marks" else mesh.kind
-            for code in np.unique(codes).tolist():
-                material = mark_material(MARK_COLOURS[code]) if layer == "marks" else SURFACE_KINDS[code]
-                members.append((layer, material, mesh.select(np.flatnonzero(codes == code))))
-        tally.materials.update(material for _, material, _ in members)
-        if members and exports:
-            tile_entries.append(write_tile(folder, fmt, grid, index, members))
-        if canvas is not None:
-            for layer, material, mesh in members:
-                canvas.paint(layer, material, group_code(layer, material), mesh)
-        whole = layers_of["whole"].parts(index)
-        if layers[0][1] is not None or whole:
-            labelled.append(_write_labelled(folder, index, layers[0][1], whole))
-            indices.append([int(index[0]), int(index[1])])
-    report(len(every), len(every))
     tile_entries.sort(key=lambda entry: tuple(entry["index"]))
     order = sorted(range(len(indices)), key=lambda k: tuple(indices[k]))
     labelled, indices = [labelled[k] for k in order], [indices[k] for k in order]
@@ -585,7 +625,46 @@ def _subset_solids(data: dict, members: np.ndarray) -> dict:
     return _solid_arrays([solids[k] for k in members.tolist()], data["solid_key"][members])
 
 
-def _write_labelled(folder: Path, index, surface: Keyed | None, whole: list[dict]) -> str:
+@dataclass
+class TileProduct:
+    """What a square of the final grid gives: materials used, its tile file (relative path, bytes, mesh.json
+    entry) and its labelled tile's bytes, each None when the square holds nothing of it."""
+
+    index: tuple
+    materials: set
+    tile: tuple | None
+    labelled: bytes | None
+
+
+def tile_product(index, layers_of: dict, grid: TileGrid, fmt: str, exports: bool, canvas) -> TileProduct:
+    """Merge one square's pieces (``_Regrid`` per store) in canonical order, paint them on ``canvas`` (a
+    PreviewCanvas or None) and make its files' bytes."""
+    from tavf_mapkit.mesh.export import tile_file
+    from tavf_mapkit.mesh.marks import MARK_COLOURS
+    from tavf_mapkit.mesh.preview import group_code
+
+    layers = [(layer, merge(layers_of[name].parts(index)))
+              for layer, name in (("lanes", "surface"), ("marks", "marks"), ("solids", "solids"))]
+    members = []
+    for layer, keyed in layers:
+        if keyed is None:
+            continue
+        mesh = keyed.mesh
+        codes = mesh.colour if layer == "marks" else mesh.kind
+        for code in np.unique(codes).tolist():
+            material = mark_material(MARK_COLOURS[code]) if layer == "marks" else SURFACE_KINDS[code]
+            members.append((layer, material, mesh.select(np.flatnonzero(codes == code))))
+    tile = tile_file(fmt, grid, index, members) if members and exports else None
+    if canvas is not None:
+        for layer, material, mesh in members:
+            canvas.paint(layer, material, group_code(layer, material), mesh)
+    whole = layers_of["whole"].parts(index)
+    surface = layers[0][1]
+    labelled = _labelled_bytes(surface, whole) if surface is not None or whole else None
+    return TileProduct(tuple(int(v) for v in index), {material for _, material, _ in members}, tile, labelled)
+
+
+def _labelled_bytes(surface: Keyed | None, whole: list[dict]) -> bytes:
     """labelled/tile_I_J.npz: the tile's road surface (faces by centroid) and its solids (by centre), both in
     canonical order."""
     from tavf_mapkit.mesh.solids import SceneSolids
@@ -604,9 +683,7 @@ def _write_labelled(folder: Path, index, surface: Keyed | None, whole: list[dict
         arrays.update({f"solids_{name}": value for name, value in
                        SceneSolids(tuple(solids[k] for k in order.tolist()), ()).arrays().items()
                        if name != "skipped"})
-    name = tile_name(index)
-    write_bytes_atomic(folder / LABELLED / f"{name}.npz", npz_bytes(arrays))
-    return name
+    return npz_bytes(arrays)
 
 
 def read_labelled_index(folder: str | Path) -> dict:
@@ -614,11 +691,13 @@ def read_labelled_index(folder: str | Path) -> dict:
     return json.loads((Path(folder) / "index.json").read_text(encoding="utf-8"))
 
 
-def read_labelled_tile(path: str | Path):
-    """(LabelledMesh surface or None, SceneSolids) of one labelled tile."""
+def read_labelled_tile(path: str | Path | bytes):
+    """(LabelledMesh surface or None, SceneSolids) of one labelled tile (its path, or the file's bytes)."""
+    import io
+
     from tavf_mapkit.mesh.solids import SceneSolids
 
-    with np.load(path, allow_pickle=False) as data:
+    with np.load(io.BytesIO(path) if isinstance(path, bytes) else path, allow_pickle=False) as data:
         arrays = {name: data[name] for name in data.files}
     surface = None
     if "surface_faces" in arrays:

@@ -18,6 +18,8 @@ class BuildContext:
     (also for stages reused from the previous build), so a later stage can read ``facts["extract"]["centre"]``.
     ``progress`` is the running stage's: ``report = context.progress("tiles")``, then ``report(done, total)``
     as tiles are finished (tavf_mapkit/progress.py; the command decides whether anyone sees it).
+    ``fanout`` is a ``cluster.Fanout`` when the build runs its tile stages on a Dask cluster (``--workers``,
+    ``--scheduler``), else None; it never changes what a stage writes.
     """
 
     name: str
@@ -29,6 +31,7 @@ class BuildContext:
     facts: dict[str, dict] = field(default_factory=dict)
     notify: Callable[[str], None] = lambda message: None
     progress: Progress = silent
+    fanout: object | None = None
 
     def section(self, name: str) -> dict:
         """The pipeline file's table ``[name]`` with command-line overrides applied."""

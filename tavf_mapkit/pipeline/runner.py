@@ -80,12 +80,13 @@ def default_build_name(input_path: Path, config: PipelineConfig) -> str:
 def run_build(input_path: str | Path, config: PipelineConfig, output: str | Path | None = None, *,
               force: bool = False, progress: Callable[[str], None] | None = None,
               command: str | None = None, notice: Callable[[str], None] | None = None,
-              meter: Callable[[str], Progress] | None = None) -> BuildResult:
+              meter: Callable[[str], Progress] | None = None, fanout=None) -> BuildResult:
     """Build ``input_path`` with ``config`` into ``output`` (default build/NAME); return the manifest.
 
     ``progress`` gets a line per stage; ``notice`` the lines a user must see even without progress (the
     recovery from a killed build), by default also ``progress``. ``meter(label)`` gives the Progress of the
-    stage labelled "[4/7] mesh" while it runs (``ProgressLine.task``); without it stages report to nobody."""
+    stage labelled "[4/7] mesh" while it runs (``ProgressLine.task``); without it stages report to nobody.
+    ``fanout``: a ``cluster.Fanout``, to run the tile stages' work as Dask tasks (same files)."""
     started = time.perf_counter()
     progress = progress or (lambda line: None)
     input_path = Path(input_path)
@@ -107,7 +108,7 @@ def run_build(input_path: str | Path, config: PipelineConfig, output: str | Path
         previous = None if force or folder.existing is None else read_manifest(folder.target)
         context = BuildContext(name=name, folder=folder.staging, input_path=input_path.resolve(),
                                input_kind=kind, config=config, artifacts={"input": input_path.resolve()},
-                               notify=progress)
+                               notify=progress, fanout=fanout)
         hashes = {"input": input_record["sha256"]}
         if kind == "opendrive":
             # an OpenDRIVE input is the map itself: the stages after netconvert start from it (the opendrive

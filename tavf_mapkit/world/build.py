@@ -94,11 +94,13 @@ def build_collision_world(odr, out_dir, eps: float = 0.05, osm_path: Path | None
         raise
 
 
-def build_collision_world_from_tiles(labelled: Path, out_dir, progress: Progress | None = None) -> dict:
+def build_collision_world_from_tiles(labelled: Path, out_dir, progress: Progress | None = None,
+                                    fanout=None) -> dict:
     """``build_collision_world`` from labelled tiles (``mesh.tiled``: mesh/labelled of a build), one tile at a
     time: the memory of a tile, not of the map. The world takes their eps, grid, origin and georeference.
-    ``progress`` hears of the tiles done."""
-    from tavf_mapkit.mesh.tiled import read_labelled_index, read_labelled_tile
+    ``progress`` hears of the tiles done. ``fanout``: a ``cluster.Fanout`` that makes the tiles' bodies as Dask
+    tasks (each gets its labelled tiles' bytes and sends back OBJ files; the world comes out the same)."""
+    from tavf_mapkit.mesh.tiled import read_labelled_index
 
     index_json = read_labelled_index(labelled)
     eps, tile = float(index_json["eps"]), float(index_json["tile_size"])
@@ -109,15 +111,47 @@ def build_collision_world_from_tiles(labelled: Path, out_dir, progress: Progress
         report = reporter(progress, "tiles")
         tiles = sorted(zip(index_json["tiles"], map(tuple, index_json["indices"])),
                        key=lambda item: (item[1][1], item[1][0]))
-        for done, (name, index) in enumerate(tiles):
+        if fanout is None:
+            made = (tile_files(grid, index, Path(labelled) / f"{name}.npz") for name, index in tiles)
+        else:
+            from tavf_mapkit.world.remote import remote_tile_files
+
+            made = remote_tile_files(fanout, grid, labelled, tiles)
+        report(0, len(tiles))
+        for done, ((_, index), files) in enumerate(zip(tiles, made), 1):
+            writer.put(index, files)
             report(done, len(tiles))
-            surface, scene = read_labelled_tile(Path(labelled) / f"{name}.npz")
-            writer.add(index, tile_bodies(index, surface, scene.solids))
-        report(len(tiles), len(tiles))
         return writer.finish({**index_json["solid_counts"], "skipped": list(index_json["skipped"])})
     except BaseException:
         writer.abandon()
         raise
+
+
+def tile_files(grid: TileGrid, index, labelled_tile) -> list[tuple[str, bytes, dict]]:
+    """The body files of one tile from its labelled tile (a path or the file's bytes)."""
+    from tavf_mapkit.mesh.tiled import read_labelled_tile
+
+    surface, scene = read_labelled_tile(labelled_tile)
+    return body_files(np.asarray(grid.origin, dtype=np.float64), tile_bodies(index, surface, scene.solids))
+
+
+def body_files(origin: np.ndarray, parts: list[BodyPart]) -> list[tuple[str, bytes, dict]]:
+    """(path in collision/, OBJ bytes, world.json body record) of every body, coordinates relative to origin."""
+    out = []
+    for part in parts:
+        relative = f"tiles/{part.name}.obj"
+        local = part.mesh.vertices - origin
+        data = obj_text(part.name, local, part.mesh.faces,
+                        f"{FORMAT}: {part.group} of {part.tile}, metres, pybullet = OpenDRIVE local - origin"
+                        ).encode("ascii")
+        out.append((relative, data, {
+            "name": part.name, "tile": part.tile, "group": part.group, "file": relative,
+            "sha256": hashlib.sha256(data).hexdigest(),
+            "vertices": len(part.mesh.vertices), "triangles": len(part.mesh.faces),
+            "kinds": _kind_counts(part.mesh),
+            "bounds": [np.round(local.min(axis=0), 4).tolist(), np.round(local.max(axis=0), 4).tolist()],
+        }))
+    return out
 
 
 def world_georeference(header) -> dict:
@@ -153,24 +187,17 @@ class _WorldWriter:
         self.bodies, self.tiles = [], {}
 
     def add(self, index, parts: list[BodyPart]) -> None:
-        for part in parts:
-            relative = f"tiles/{part.name}.obj"
-            local = part.mesh.vertices - self.origin
-            data = obj_text(part.name, local, part.mesh.faces,
-                            f"{FORMAT}: {part.group} of {part.tile}, metres, pybullet = OpenDRIVE local - origin"
-                            ).encode("ascii")
+        self.put(index, body_files(self.origin, parts))
+
+    def put(self, index, files: list[tuple[str, bytes, dict]]) -> None:
+        """Files of a tile's bodies (``body_files``) written, their records kept for world.json."""
+        for relative, data, body in files:
             (self.staging / relative).write_bytes(data)
-            self.bodies.append({
-                "name": part.name, "tile": part.tile, "group": part.group, "file": relative,
-                "sha256": hashlib.sha256(data).hexdigest(),
-                "vertices": len(part.mesh.vertices), "triangles": len(part.mesh.faces),
-                "kinds": _kind_counts(part.mesh),
-                "bounds": [np.round(local.min(axis=0), 4).tolist(), np.round(local.max(axis=0), 4).tolist()],
-            })
-            entry = self.tiles.setdefault(part.tile, {
-                "name": part.tile, "index": list(part.index), "bounds": self.grid.relative_bounds(part.index),
+            self.bodies.append(body)
+            entry = self.tiles.setdefault(body["tile"], {
+                "name": body["tile"], "index": list(index), "bounds": self.grid.relative_bounds(index),
                 "bodies": []})
-            entry["bodies"].append(part.name)
+            entry["bodies"].append(body["name"])
 
     def finish(self, solids: dict) -> dict:
         world = {

@@ -38,7 +38,8 @@ class CollisionStage(Stage):
         labelled = meshed.labelled(options["eps"], options["tile"], osm_path)
         if labelled is not None:
             # the mesh stage's labelled tiles: the world is cut from exactly the meshes it exported
-            world = build_collision_world_from_tiles(labelled, context.folder, progress=context.progress)
+            world = build_collision_world_from_tiles(labelled, context.folder, progress=context.progress,
+                                                     fanout=context.fanout)
         else:
             from tavf_mapkit.mesh.tiled import LABELLED, write_tiled_mesh
 

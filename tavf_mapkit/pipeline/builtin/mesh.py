@@ -38,8 +38,11 @@ class MeshStage(Stage):
         odr = context.opendrive()
         osm_path = context.osm_source()
         folder = context.output_path("mesh/mesh.json").parent
+        # on a Dask cluster the tasks get the map's bytes (no shared filesystem) and load it once per worker
+        fanout = None if context.fanout is None else context.fanout.with_file(context.artifacts["xodr"])
         summary = write_mesh_folder(odr, folder, options["eps"], options["format"], options["tile"],
-                                    osm_path=osm_path, solids=options["solids"], progress=context.progress)
+                                    osm_path=osm_path, solids=options["solids"], progress=context.progress,
+                                    fanout=fanout)
         shutil.copyfile(folder / "preview.png", context.output_path("report/mesh_preview.png"))
         triangles = summary["triangles"]
         context.note(f"mesh: {triangles['lanes'] + triangles['junctions']} surface + {triangles['marks']} mark"

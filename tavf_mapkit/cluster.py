@@ -1,0 +1,188 @@
+"""Dask, only when asked: the connection to a cluster shared by ``mapkit build --workers/--scheduler`` and
+``twin sweep``, and the few ways our code hands work to it.
+
+Nothing here imports Dask at module level: without ``--workers``/``--scheduler`` no Dask module is ever loaded
+(tests/test_distributed_build.py checks it), and the single-process paths stay exactly as they are.
+
+- ``connect(workers=N)`` starts a LocalCluster of N processes with one thread each (our stages are numpy and
+  Python code that holds the GIL; libsumo allows one simulation per process); ``connect(scheduler=ADDR)`` joins
+  a running scheduler (a laptop, SSH hosts, Slurm via dask-jobqueue, Kubernetes via dask-kubernetes), waiting
+  at most ``CONNECT_TIMEOUT`` seconds for it and for its first worker, so a wrong address is one line, not a hang.
+- ``Fanout.map`` runs a top-level function over argument tuples and yields the results in order, with a bounded
+  number of tasks in flight (the client's memory holds a window of results, not all of them). A task of a worker
+  that dies is run again on another one by the scheduler (``distributed.scheduler.allowed-failures``).
+- ``Fanout.with_file(path)`` sends a file's bytes to the cluster once (``Client.scatter``, content-addressed by
+  sha256); every task of the returned ``FileFanout`` gets (sha256, bytes) first, and ``worker_cached`` keeps
+  what a worker made of them (a loaded map) for the next task. Workers need no shared filesystem.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from collections import OrderedDict, deque
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from tavf_mapkit.errors import InputError, StageError
+
+CONNECT_TIMEOUT = 10.0   # s to reach a scheduler, and for it to have a worker
+TASKS_PER_WORKER = 3     # tasks in flight per worker: enough to keep each busy while the client takes results
+INSTALL_HINT = "pip install 'tavf-mapkit[distributed]'"
+
+
+def check_cluster_options(workers: int | None, scheduler: str | None) -> None:
+    """--workers and --scheduler exclude each other; N >= 1; an address looks like tcp://HOST:PORT."""
+    if workers is not None and scheduler is not None:
+        raise InputError("--workers and --scheduler exclude each other (a scheduler brings its own workers)")
+    if workers is not None and workers < 1:
+        raise InputError(f"--workers must be at least 1, not {workers}")
+    if scheduler is not None and "://" not in scheduler and ":" not in scheduler:
+        raise InputError(f"--scheduler {scheduler!r}: expected an address such as tcp://HOST:8786")
+
+
+def wants_cluster(workers: int | None, scheduler: str | None) -> bool:
+    """Whether the options ask for Dask: a scheduler, or more than one worker (one worker is this process)."""
+    return scheduler is not None or (workers is not None and workers > 1)
+
+
+@contextmanager
+def connect(workers: int | None = None, scheduler: str | None = None,
+            timeout: float = CONNECT_TIMEOUT) -> Iterator[Fanout]:
+    """A Fanout on a LocalCluster of ``workers`` processes, or on the scheduler at ``scheduler``; closed (and the
+    local cluster stopped) when the block ends."""
+    check_cluster_options(workers, scheduler)
+    try:
+        import logging
+
+        import dask
+        from distributed import Client, LocalCluster
+    except ImportError:
+        raise StageError(f"--workers/--scheduler need Dask: {INSTALL_HINT}") from None
+    # a task's arguments are its tiles' data (a few MB): no warning about it on every build
+    dask.config.set({"distributed.admin.large-graph-warning-threshold": "1GB"})
+    cluster = None
+    try:
+        if scheduler is not None:
+            client = Client(scheduler, timeout=timeout, set_as_default=False)
+        else:
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                   dashboard_address=None, silence_logs=logging.ERROR)
+            client = Client(cluster, set_as_default=False)
+    except (OSError, TimeoutError) as error:
+        if cluster is not None:
+            cluster.close()
+        where = f"the Dask scheduler at {scheduler}" if scheduler else "a local Dask cluster"
+        raise StageError(f"cannot reach {where} within {timeout:g} s ({_reason(error)})") from None
+    try:
+        try:
+            client.wait_for_workers(1, timeout=timeout)
+        except (OSError, TimeoutError):
+            raise StageError(f"the Dask scheduler at {scheduler} has no worker (waited {timeout:g} s)") from None
+        yield Fanout(client)
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def _reason(error: BaseException) -> str:
+    text = str(error).strip().splitlines()
+    return text[0] if text else type(error).__name__
+
+
+class Fanout:
+    """Work handed to a Dask client, results back in order."""
+
+    def __init__(self, client):
+        self.client = client
+        self._shared: dict[str, object] = {}  # sha256 -> future of the scattered bytes
+
+    @property
+    def workers(self) -> int:
+        return max(1, len(self.client.scheduler_info(n_workers=-1).get("workers", {})))
+
+    def map(self, function: Callable, arguments: Iterable[tuple], window: int | None = None) -> Iterator:
+        """``function(*args)`` for every tuple, on the cluster; results in the order of ``arguments``, at most
+        ``window`` tasks in flight (default TASKS_PER_WORKER per worker)."""
+        window = window or TASKS_PER_WORKER * self.workers
+        pending: deque = deque()
+        arguments = iter(arguments)
+        exhausted = False
+        while True:
+            while not exhausted and len(pending) < window:
+                try:
+                    args = next(arguments)
+                except StopIteration:
+                    exhausted = True
+                    break
+                pending.append(self.client.submit(function, *args, pure=False))
+            if not pending:
+                return
+            future = pending.popleft()
+            try:
+                result = future.result()
+            except BaseException:
+                for other in pending:
+                    other.cancel()
+                raise
+            future.release()
+            yield result
+
+    def share(self, data: bytes) -> tuple[str, object]:
+        """(sha256, future) of bytes placed on the cluster once; workers fetch them from each other as needed."""
+        digest = hashlib.sha256(data).hexdigest()
+        if digest not in self._shared:
+            self._shared[digest] = self.client.scatter(data, hash=False)
+        return digest, self._shared[digest]
+
+    def with_file(self, path: str | Path) -> FileFanout:
+        return FileFanout(self, *self.share(Path(path).read_bytes()), Path(path).name)
+
+
+class FileFanout:
+    """A Fanout whose every task gets a file's (sha256, bytes, name) before its own arguments."""
+
+    def __init__(self, fanout: Fanout, digest: str, future, name: str):
+        self.fanout, self.digest, self.future, self.name = fanout, digest, future, name
+
+    @property
+    def workers(self) -> int:
+        return self.fanout.workers
+
+    def map(self, function: Callable, arguments: Iterable[tuple], window: int | None = None) -> Iterator:
+        return self.fanout.map(function, ((self.digest, self.future, self.name, *args) for args in arguments),
+                               window)
+
+
+# -- the worker's side --------------------------------------------------------------------------------------
+
+_CACHE: OrderedDict = OrderedDict()
+_CACHE_SIZE = int(os.environ.get("TAVF_WORKER_CACHE", "4"))  # a map and what is derived from it
+
+
+def worker_cached(key, make: Callable):
+    """``make()``, kept in this process for the next task with the same key (a few entries, least recently used
+    dropped): a worker loads a map once per build, not once per task."""
+    if key in _CACHE:
+        _CACHE.move_to_end(key)
+        return _CACHE[key]
+    value = make()
+    _CACHE[key] = value
+    while len(_CACHE) > _CACHE_SIZE:
+        _CACHE.popitem(last=False)
+    return value
+
+
+def worker_map(digest: str, data: bytes, name: str):
+    """The OpenDRIVE map of (sha256, bytes) in this worker, loaded once."""
+    from tavf_mapkit.opendrive.reader import loads_opendrive
+
+    return worker_cached(("opendrive", digest), lambda: loads_opendrive(data, name))
+
+
+def batches_for(count: int, workers: int, at_most: int, per_worker: int = 4) -> int:
+    """How many items a task takes so that ``count`` items make at least ``per_worker`` tasks per worker (load
+    balance) and a task never takes more than ``at_most`` (its memory)."""
+    return max(1, min(at_most, -(-count // max(1, per_worker * workers))))
