@@ -67,7 +67,8 @@ def _from_recording(path: Path, georef) -> dict:
     config = recording.config or {}
     return {"ego": ego, "traffic": _traffic(traffic, georef) if traffic else None, "udm": udm,
             "config": {key: (config.get("config") or {}).get(key)
-                       for key in ("seed", "duration", "traffic", "pedestrians", "lidar", "udm", "map_name")}}
+                       for key in ("seed", "duration", "traffic", "pedestrians", "lidar", "udm", "map_name",
+                                   "map_sha256")}}
 
 
 def _udm_answer(data: dict) -> dict:

@@ -51,6 +51,10 @@ def load_view_data(build_path, run_paths=(), *, basemap: bool = False) -> ViewDa
     runs = [load_run(path, georef) for path in run_paths]
     for run in runs:
         _add_udm_local(run, georef)
+        driven_on = (run.get("config") or {}).get("map_sha256")
+        if driven_on and driven_on != build.map_sha256:
+            # still shown (the roads may be the same), but said: positions may not fit this build's lanes
+            run["notes"].insert(0, "driven on another build of the map (its OpenDRIVE sha256 differs)")
     return ViewData(map_json=_dumps(data), scene_json=_dumps(scene_data(build.path)),
                     runs=[_dumps(run) for run in runs], run_names=[run["name"] for run in runs],
                     build_path=build.path, basemap=basemap)

@@ -121,7 +121,7 @@
       layers.gnss = L.geoJSON(L_.gnss, {
         renderer: canvas,
         pointToLayer: (f, latlng) => L.circleMarker(latlng, { renderer: canvas, radius: 2.5, weight: 0,
-          fillOpacity: 0.9, fillColor: !f.properties.matched ? "#000000" :
+          fillOpacity: 0.9, fillColor: !f.properties.matched ? "#dee2e6" :
             f.properties.distance_m < 1 ? "#40c057" : f.properties.distance_m < 3 ? "#fab005" : "#fa5252" }),
         onEachFeature: (f, layer) => layer.bindPopup(() => propertiesPopup("GNSS fix", f.properties)),
       }).addTo(map);
@@ -162,7 +162,7 @@
         for (let k = 0; k < frame.ids.length; k++) {
           const person = frame.person[k];
           L.circleMarker([frame.lat[k], frame.lon[k]], { renderer: canvas, radius: person ? 3 : 5, weight: 1,
-            color: "#212529", fillColor: person ? "#f06595" : "#fd7e14", fillOpacity: 1, interactive: false,
+            color: "#212529", fillColor: person ? "#f06595" : "#22b8cf", fillOpacity: 1, interactive: false,
           }).addTo(replay.traffic);
         }
       }

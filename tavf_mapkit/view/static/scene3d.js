@@ -199,7 +199,7 @@ export class MapkitScene3D {
           const person = frame.person[k];
           const geometry = person ? new THREE.CylinderGeometry(0.3, 0.3, 1.7, 10)
             : new THREE.BoxGeometry(frame.length[k] || 4.5, 1.5, frame.width[k] || 1.8);
-          actor = new THREE.Mesh(geometry, new THREE.MeshStandardMaterial({ color: person ? 0xf06595 : 0xfd7e14 }));
+          actor = new THREE.Mesh(geometry, new THREE.MeshStandardMaterial({ color: person ? 0xf06595 : 0x22b8cf }));
           actor.userData.lift = person ? 0.85 : 0.75;
           this.actors.set(id, actor);
           this.replayGroup.add(actor);
