@@ -11,6 +11,7 @@ COMMANDS = {
     "udm": "twin.cli.udm:udm",
     "drive": "twin.cli.drive:drive",
     "replay": "twin.cli.replay:replay",
+    "sweep": "twin.cli.sweep:sweep",
 }
 
 
