@@ -10,7 +10,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 
 @dataclass(frozen=True)
@@ -49,6 +48,8 @@ class LaneIndex:
         step[first] = 0.0
         cumulative = np.cumsum(step)
         self.arc = cumulative - np.maximum.accumulate(np.where(first, cumulative, 0.0))
+        from scipy.spatial import cKDTree  # here: importing scipy costs a second, and only lookups need it
+
         self.tree = cKDTree(self.xy)
 
     def node_index(self, key) -> int:
