@@ -27,7 +27,8 @@ from pathlib import Path
 
 from tavf_mapkit.errors import InputError, StageError
 
-CONNECT_TIMEOUT = 10.0   # s to reach a scheduler, and for it to have a worker
+# s to reach a scheduler, and for it to have a worker (TAVF_CONNECT_TIMEOUT: a slow network's, or a test's)
+CONNECT_TIMEOUT = float(os.environ.get("TAVF_CONNECT_TIMEOUT", "10"))
 TASKS_PER_WORKER = 3     # tasks in flight per worker: enough to keep each busy while the client takes results
 INSTALL_HINT = "pip install 'tavf-mapkit[distributed]'"
 
@@ -49,10 +50,11 @@ def wants_cluster(workers: int | None, scheduler: str | None) -> bool:
 
 @contextmanager
 def connect(workers: int | None = None, scheduler: str | None = None,
-            timeout: float = CONNECT_TIMEOUT) -> Iterator[Fanout]:
+            timeout: float | None = None) -> Iterator[Fanout]:
     """A Fanout on a LocalCluster of ``workers`` processes, or on the scheduler at ``scheduler``; closed (and the
     local cluster stopped) when the block ends."""
     check_cluster_options(workers, scheduler)
+    timeout = CONNECT_TIMEOUT if timeout is None else timeout
     try:
         import logging
 
@@ -131,10 +133,12 @@ class Fanout:
             yield result
 
     def share(self, data: bytes) -> tuple[str, object]:
-        """(sha256, future) of bytes placed on the cluster once; workers fetch them from each other as needed."""
+        """(sha256, future) of bytes placed on the cluster once. On every worker there is now (broadcast): data
+        scattered to one worker only would be lost with it, and tasks cannot make it again; a worker that joins
+        later fetches it from another."""
         digest = hashlib.sha256(data).hexdigest()
         if digest not in self._shared:
-            self._shared[digest] = self.client.scatter(data, hash=False)
+            self._shared[digest] = self.client.scatter(data, hash=False, broadcast=True)
         return digest, self._shared[digest]
 
     def with_file(self, path: str | Path) -> FileFanout:

@@ -1,0 +1,148 @@
+"""mapkit build on a real Dask cluster on loopback (a `dask scheduler` and `dask worker` processes, each with its
+own directory): the same mesh, collision world and preview as the single-process build, also when a worker is
+killed mid-build; no Dask at all without --workers/--scheduler; one-line errors for a scheduler that is not
+there and for contradicting options."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from conftest import shared_path
+from dask_cluster import free_port, loopback_cluster, wait_until
+
+pytest.importorskip("distributed")
+
+MAPKIT = str(Path(sys.executable).parent / "mapkit")
+PERTH = ("zoo", "osm", "AU_perth_peanut_roundabout_LHT.osm.gz")
+NEUKOELLN = ("zoo", "osm", "DE_berlin_neukoelln.osm.gz")
+BUILD_TIMEOUT = 600
+
+# the build of the CLI in this process's interpreter, reporting at its end which Dask modules it imported
+SERIAL_BUILD = """
+import json, sys
+from tavf_mapkit.cli.main import cli
+try:
+    cli(sys.argv[1:], standalone_mode=False)
+finally:
+    print("DASK-MODULES " + json.dumps(sorted(m for m in sys.modules if m.split(".")[0] in ("dask", "distributed"))))
+"""
+
+
+def serial_build(source: Path, out: Path) -> list[str]:
+    """Build without --workers/--scheduler; return the Dask modules the process imported."""
+    done = subprocess.run([sys.executable, "-c", SERIAL_BUILD, "build", str(source), "-o", str(out), "-q"],
+                          capture_output=True, text=True, timeout=BUILD_TIMEOUT)
+    assert done.returncode == 0, done.stderr
+    line = [line for line in done.stdout.splitlines() if line.startswith("DASK-MODULES ")][-1]
+    return json.loads(line.removeprefix("DASK-MODULES "))
+
+
+def files_of(build: Path) -> dict[str, bytes]:
+    """Every file of mesh/ and collision/ and the preview, by path in the build."""
+    out = {}
+    for part in ("mesh", "collision"):
+        for path in sorted((build / part).rglob("*")):
+            if path.is_file():
+                out[path.relative_to(build).as_posix()] = path.read_bytes()
+    out["report/mesh_preview.png"] = (build / "report" / "mesh_preview.png").read_bytes()
+    return out
+
+
+def assert_same_files(reference: Path, other: Path) -> None:
+    expected, got = files_of(reference), files_of(other)
+    assert sorted(got) == sorted(expected)
+    different = [name for name in expected if got[name] != expected[name]]
+    assert not different, f"{len(different)} files differ, e.g. {different[:5]}"
+    assert any(name.startswith("collision/tiles/") for name in expected)
+    assert any(name.startswith("mesh/labelled/tile_") for name in expected)
+
+
+@pytest.fixture(scope="module")
+def perth_serial(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("serial") / "perth"
+    imported = serial_build(shared_path(*PERTH), out)
+    assert imported == [], f"a build without --workers/--scheduler imported {imported}"
+    return out
+
+
+def test_build_without_cluster_options_imports_no_dask(perth_serial):
+    # the fixture's build ran in a fresh interpreter and reported no dask / distributed module at its end
+    assert (perth_serial / "manifest.json").is_file()
+
+
+def test_build_on_loopback_cluster_is_byte_identical(perth_serial, tmp_path):
+    with loopback_cluster(tmp_path / "cluster", workers=2) as cluster:
+        out = tmp_path / "distributed" / "perth"
+        done = subprocess.run([MAPKIT, "build", str(shared_path(*PERTH)), "-o", str(out), "-q",
+                               "--scheduler", cluster.address], capture_output=True, text=True,
+                              timeout=BUILD_TIMEOUT, cwd=tmp_path)
+        assert done.returncode == 0, done.stderr
+        # the work ran on the workers: each loaded the map the client sent it (no shared filesystem)
+        with cluster.client() as client:
+            loaded = client.run(lambda: [key[0] for key in __import__("tavf_mapkit.cluster").cluster._CACHE])
+        assert sum("opendrive" in keys for keys in loaded.values()) >= 1, loaded
+    assert_same_files(perth_serial, out)
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["status"] == "ok"
+
+
+@pytest.mark.slow
+def test_build_survives_a_killed_worker(tmp_path):
+    source = shared_path(*NEUKOELLN)
+    reference = tmp_path / "serial" / "neukoelln"
+    serial_build(source, reference)
+    with loopback_cluster(tmp_path / "cluster", workers=2) as cluster:
+        out = tmp_path / "distributed" / "neukoelln"
+        build = subprocess.Popen([MAPKIT, "build", str(source), "-o", str(out), "-q", "--scheduler",
+                                  cluster.address], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                 cwd=tmp_path, start_new_session=True)
+        try:
+            with cluster.client() as client:
+                busy = {}
+
+                def a_worker_is_busy() -> bool:
+                    busy.update({addr: keys for addr, keys in client.processing().items() if keys})
+                    return bool(busy)
+
+                assert wait_until(a_worker_is_busy, timeout=BUILD_TIMEOUT, step=0.02), "no task ever ran"
+                victim = next(iter(busy))
+                pid = client.run(os.getpid, workers=[victim])[victim]
+                os.killpg(os.getpgid(pid), signal.SIGKILL)  # the worker and its nanny: a machine lost
+                assert wait_until(lambda: victim not in client.scheduler_info(n_workers=-1)["workers"], 60)
+            stdout, stderr = build.communicate(timeout=BUILD_TIMEOUT)
+        finally:
+            if build.poll() is None:
+                os.killpg(build.pid, signal.SIGKILL)
+                build.wait()
+        assert build.returncode == 0, stderr
+    assert_same_files(reference, out)
+
+
+def test_unreachable_scheduler_is_one_line(tmp_path):
+    address = f"tcp://127.0.0.1:{free_port()}"  # nothing listens there
+    started = time.monotonic()
+    done = subprocess.run([MAPKIT, "build", str(shared_path(*PERTH)), "-o", str(tmp_path / "perth"),
+                           "--scheduler", address], capture_output=True, text=True, timeout=60,
+                          env={**os.environ, "TAVF_CONNECT_TIMEOUT": "2"})
+    assert done.returncode == 1
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in done.stderr, done.stderr
+    assert lines[0].startswith(f"Error: cannot reach the Dask scheduler at {address} within 2 s")
+    assert time.monotonic() - started < 30
+    assert not (tmp_path / "perth").exists()
+
+
+def test_workers_and_scheduler_exclude_each_other(tmp_path):
+    done = subprocess.run([MAPKIT, "build", str(shared_path(*PERTH)), "-o", str(tmp_path / "perth"),
+                           "--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], capture_output=True, text=True,
+                          timeout=60)
+    assert done.returncode == 2
+    assert done.stderr.strip() == ("Error: --workers and --scheduler exclude each other (a scheduler brings its "
+                                   "own workers)")
