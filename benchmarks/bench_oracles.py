@@ -15,7 +15,9 @@ Per input it prints
   (road, section, lane, s): how many samples lie more than 1 mm apart, p99 and max distance, the worst place;
 - CARLA 0.9.16's client-side map: its waypoints every 2 m against our lane centre at the same (road, section,
   lane, s): median, p99, max distance (CARLA's locations are single-precision floats and it evaluates
-  paramPoly3 as a polyline: a few centimetres near tight curves are CARLA's);
+  paramPoly3 as a polyline: a few centimetres near tight curves are CARLA's); "f32" is the median distance of
+  our centres from themselves rounded to single precision, the floor no float reader can go below (it grows
+  with the map's extent: ~0.15 mm on a map 10 km across);
 - ASAM's quality checker (asam-qc-opendrive): issues by checker, and how many of its checkers it skipped
   (a failed precondition such as the schema check, or rules of a later OpenDRIVE version than the file's);
   netconvert writes OpenDRIVE 1.4, to which most of its rules (from 1.7 on) do not apply, so it also checks a
@@ -53,6 +55,8 @@ INPUTS = {  # name -> (what, source); source None: netconvert's raw OpenDRIVE of
     ),
     "krems": ("zoo Krems OSM, build", SHARED / "zoo" / "osm" / "AT_krems.osm.gz"),
     "melbourne": ("zoo Melbourne OSM, build", SHARED / "zoo" / "osm" / "AU_melbourne_arterials_LHT.osm.pbf"),
+    # the largest extents: CARLA's single-precision floats show most there
+    "bayreuth": ("zoo Bayreuth OSM, build", SHARED / "zoo" / "osm" / "DE_bayreuth_north.osm.gz"),
     "tavf-raw": ("DLR TAVF net, raw netconvert", None),
 }
 PEER_OF = {"asam_qc": "qc", "asam_qc_1.8": "qc"}
@@ -158,7 +162,7 @@ def mm(value) -> str:
 def print_table(rows: dict) -> None:
     print(
         f"\n{'input':<30} {'roads':>5} {'errors':>6} {'warn':>5} | {'C++ samples':>11} {'>1mm':>6} "
-        f"{'p99 mm':>7} {'max mm':>7} | {'CARLA wps':>9} {'med mm':>7} {'p99 mm':>7} {'max mm':>7} | "
+        f"{'p99 mm':>7} {'max mm':>7} | {'CARLA wps':>9} {'med mm':>7} {'f32 mm':>7} {'p99 mm':>7} {'max mm':>7} | "
         "ASAM issues (checkers skipped) as the file / as 1.8"
     )
     for row in rows.values():
@@ -169,9 +173,10 @@ def print_table(rows: dict) -> None:
             else f"{cpp['matched']:>11} {cpp['over_1mm']:>6} {mm(cpp['p99_m']):>7} {mm(cpp['max_m']):>7}"
         )
         carla_text = (
-            f"{'failed':>9} {'':>7} {'':>7} {'':>7}"
+            f"{'failed':>9} {'':>7} {'':>7} {'':>7} {'':>7}"
             if "error" in carla
-            else f"{carla['waypoints']:>9} {mm(carla['median_m']):>7} {mm(carla['p99_m']):>7} "
+            else f"{carla['waypoints']:>9} {mm(carla['median_m']):>7} {mm(carla.get('float32_median_m')):>7} "
+            f"{mm(carla['p99_m']):>7} "
             f"{mm(carla['max_m']):>7}"
         )
         qc_text = " / ".join(

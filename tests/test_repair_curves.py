@@ -18,7 +18,13 @@ from click.testing import CliRunner
 from tavf_mapkit.opendrive import load_opendrive
 from tavf_mapkit.opendrive.geometry import GeometryKind, param_poly3_length
 from tavf_mapkit.opendrive.reader import loads_opendrive
-from tavf_mapkit.opendrive.repair_curves import CURVE_AS_ARCS, KEPT_CURVE, TOLERANCE, repair_curves
+from tavf_mapkit.opendrive.repair_curves import (
+    CURVE_AS_ARCS,
+    KEPT_CURVE,
+    MIN_CURVATURE,
+    TOLERANCE,
+    repair_curves,
+)
 from tavf_mapkit.opendrive.repair_redundant import MERGED_RECORDS
 from tavf_mapkit.opendrive.sampling import sample_lanes
 from tavf_mapkit.opendrive.writer import to_xml, write_opendrive
@@ -106,9 +112,16 @@ def test_pieces_join_g1_and_keep_s_and_length(curves):
         gap = np.hypot(x - table.x[1:], y - table.y[1:])[made]
         kink = np.abs(np.angle(np.exp(1j * (hdg - table.hdg[1:]))))[made]
         assert np.abs(s[1:] - (s[:-1] + length[:-1]))[made].max(initial=0.0) < 1e-9, new.id
-        assert gap.max(initial=0.0) < 1e-6 and kink.max(initial=0.0) < 1e-6, new.id
+        # a piece that curves less than MIN_CURVATURE is a line along its chord: half its turn at either end
+        line = table.kind == int(GeometryKind.LINE)
+        flat_turn = 0.5 * MIN_CURVATURE * (np.where(line[:-1], length[:-1], 0.0)
+                                           + np.where(line[1:], length[1:], 0.0))
+        assert gap.max(initial=0.0) < 1e-6, new.id
+        assert (kink - flat_turn[made]).max(initial=0.0) < 1e-6, new.id
         arcs = [g.params[0] for g in geometries if g.kind is GeometryKind.ARC]  # real arcs: finite, not 0
         assert all(np.isfinite(arcs)) and all(a != 0.0 for a in arcs), new.id
+        # no arc so flat that CARLA's single-precision centre puts it off (closure may bend a piece a little)
+        assert all(abs(a) >= 0.5 * MIN_CURVATURE for a in arcs), new.id
 
 
 def test_repairing_the_repaired_file_changes_nothing(curves, tmp_path):

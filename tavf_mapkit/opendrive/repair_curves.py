@@ -20,8 +20,9 @@ then puts the chain's end on the curve's end (to JOINT, heading exactly). Each a
 curve at nine points and its start, at the same s: its border deviation -- position error plus widest lane
 offset times heading error -- must stay within the tolerance, or the piece is split (by the square root of
 its excess) and the curve fitted again. Pieces that turn so little that a line does as well are made lines
-(CARLA evaluates an arc through its centre in single precision: a 10 km radius costs it a millimetre); a curve
-that a single line follows within the tolerance becomes one <line>.
+(CARLA evaluates an arc through its centre in single precision: a 10 km radius costs it a millimetre), and so is
+every piece that curves less than MIN_CURVATURE, along its chord (a heading step of microradians at its ends,
+within the same border check); a curve that a single line follows within the tolerance becomes one <line>.
 
 TOLERANCE is 1 mm, the measure of the @length repair ("lane borders stay where they were"): on DLR's TAVF
 build it makes 1,399 curves 37,000 arcs (+8 MB of XML, 3 s); 0.1 mm would take 106,000. Either way both
@@ -61,6 +62,11 @@ CURVES_PER_BATCH = 2000
 SECTIONS_PER_BATCH = 2000
 #: a curvature whose arc stays this close (m, rad) to its tangent line over its length is written as a line
 STRAIGHT = 1e-10
+#: a piece that curves less than this (1/m) is a line along its chord, with a heading step of under
+#: MIN_CURVATURE x length / 2 at its ends: CARLA evaluates an arc through its centre in single precision,
+#: radius x cos(heading) rounded to a float, so an arc of 10 km radius is up to a millimetre off there and one
+#: of 10,000 km (the piece at a curve's inflection) half a metre. A line is exact in every reader.
+MIN_CURVATURE = 1e-4
 
 #: pieces must fit to this share of the tolerance at the checked points (the deviation is smooth between them)
 _MARGIN = 0.9
@@ -474,13 +480,18 @@ def _arc_chains(curves, curve, pa, pb, used, lever, budget):
     owner = np.cumsum(first) - 1  # each piece's curve, numbered among the curves here
     counts = np.diff(np.r_[np.flatnonzero(first), len(curve)])
     # the end moves by i e^{i heading} (half the pieces beside it) per radian of an inner knot's heading
+    # where the curve itself turns so little that CARLA would misplace an arc (the chain's own turns move with
+    # the closure, which would pin a piece flat that the closure then needs to bend)
+    with np.errstate(all="ignore"):
+        nearly_flat = np.abs(turn) < MIN_CURVATURE * h
     for closing in range(_CLOSURE_STEPS + 1):
         if closing in _STRAIGHTEN_AT:  # once before closing, once after (closing makes more pieces flat)
             knot, straight = _straightened(knot, end_heading, first, last, weight)
             frozen |= straight
         knot_b = np.r_[knot[1:], 0.0]
         knot_b[last] = end_heading
-        step = h * _chord(knot, knot_b)
+        # a nearly flat piece is a line along its chord (the arc's chord has the mean of its end headings)
+        step = h * np.where(nearly_flat, np.exp(0.5j * (knot + knot_b)), _chord(knot, knot_b))
         start = np.repeat(origin, counts) + _grouped_cumsum(step, first) - step
         miss = (start + step)[last] - target
         if closing == _CLOSURE_STEPS:
@@ -497,17 +508,24 @@ def _arc_chains(curves, curve, pa, pb, used, lever, budget):
     closed = np.zeros(n_curves, dtype=bool)
     closed[curve[last]] = np.abs(miss) <= JOINT
     with np.errstate(all="ignore"):
-        curvature = (knot_b - knot) / h
+        curvature = np.where(nearly_flat, 0.0, (knot_b - knot) / h)
+    heading = np.where(nearly_flat, 0.5 * (knot + knot_b), knot)  # each piece's own heading at its start
     # the chain at the nodes and at both ends of each piece, against the curve at the same s (a knot's error
-    # is both pieces' it joins: a long piece before it can be what puts it off)
-    chain_heading = knot[:, None] + curvature[:, None] * un
-    chain = start[:, None] + un * _chord(knot[:, None], chain_heading)
+    # is both pieces' it joins: a long piece before it can be what puts it off; a line's own heading at its
+    # end is not the next piece's)
+    chain_heading = heading[:, None] + curvature[:, None] * un
+    chain = start[:, None] + un * _chord(heading[:, None], chain_heading)
     inside = np.abs(chain - (xn + 1j * yn)) + lever[curve][:, None] * np.abs(chain_heading - heading_n)
-    at_knot = np.abs(start - (xa + 1j * ya)) + lever[curve] * np.abs(knot - heading_a)
+    at_knot = np.abs(start - (xa + 1j * ya)) + lever[curve] * np.abs(heading - heading_a)
     at_end = np.where(last, 0.0, np.r_[at_knot[1:], 0.0])
+    line_end = np.abs(start + step - (xb + 1j * yb)) + lever[curve] * np.abs(heading - heading_b)
+    at_end = np.where(nearly_flat, np.maximum(at_end, line_end), at_end)
     deviation = np.maximum(inside.max(axis=1), np.maximum(at_knot, at_end))
     deviation = np.where(np.isfinite(curvature), deviation, np.inf)
-    return (sa, start.real, start.imag, _wrap(knot), curvature, h), deviation, closed
+    # a line may use only part of the budget: what it misses of the curve's turn the closure must make up on
+    # the pieces before it, and a long line leaves them none
+    deviation = np.where(nearly_flat, deviation / _FLAT_LINE_SHARE, deviation)
+    return (sa, start.real, start.imag, _wrap(heading), curvature, h), deviation, closed
 
 
 def _straightened(knot, end_heading, first, last, weight):
@@ -562,6 +580,8 @@ _WEIGHTS = 0.5 * _GL9_WEIGHTS
 _MAX_TURN = 1.0
 #: a piece whose turn moves the widest lane border by less than this share of the budget is made a line
 _FLAT_SHARE = 0.25
+#: share of the budget a piece made a line for being nearly flat (MIN_CURVATURE) may use
+_FLAT_LINE_SHARE = 0.5
 #: the chain's largest heading error on a piece of length h over a curvature changing at rate k'
 _HEADING_SPREAD = 10.0
 #: rounds of fitting and splitting before a curve is given up
