@@ -144,8 +144,9 @@ def test_live_page(browser, server, perth, perth_run):
     loaded = page.evaluate("window.mapkit.scene3d.loaded")
     tiles = json.loads((perth / "mesh" / "mesh.json").read_text())["tiles"]
     assert loaded == {"tiles": len(tiles), "bodies": loaded["bodies"], "failed": 0} and loaded["bodies"] > 0
-    from PIL import Image
     import io
+
+    from PIL import Image
 
     image = np.asarray(Image.open(io.BytesIO(page.locator("#view3d canvas").screenshot())).convert("RGB"))
     colours = np.unique(image.reshape(-1, 3), axis=0)
@@ -170,7 +171,7 @@ def test_live_page(browser, server, perth, perth_run):
 
     assert watched.errors == []
     # nothing but the local server: no CDN, no tiles (the online base map is off by default)
-    assert all(u.startswith(url) or u.startswith("data:") for u in watched.requests), \
+    assert all(u.startswith((url, "data:")) for u in watched.requests), \
         [u for u in watched.requests if not u.startswith(url)]
     page.close()
     assert process.poll() is None  # still serving
@@ -192,7 +193,7 @@ def test_report_opens_from_disk(browser, perth):
 
 def test_server_stops_on_sigterm(server):
     """uvicorn shuts down (open connections closed) and ends by SIGTERM as asked, with no traceback."""
-    url, process = server
+    _, process = server
     process.send_signal(signal.SIGTERM)
     assert process.wait(timeout=15) == -signal.SIGTERM
     assert "Traceback" not in process.stderr.read()

@@ -71,11 +71,10 @@ def view(build: str, runs: tuple[str, ...], port: int, no_browser: bool, basemap
 
 
 def _write_static(build: str, output: str, basemap: bool, as_json: bool) -> None:
-    from twin.sim.build import Build
-
     from tavf_mapkit.fileutil import write_text_atomic
     from tavf_mapkit.view.mapdata import build_map_data
     from tavf_mapkit.view.page import static_map
+    from twin.sim.build import Build
 
     opened = Build.open(build)
     data = build_map_data(opened)

@@ -37,12 +37,11 @@ class ViewData:
 
 def load_view_data(build_path, run_paths=(), *, basemap: bool = False) -> ViewData:
     """Read a build folder and run folders into a ViewData (InputError on anything unreadable)."""
-    from twin.sim.build import Build
-
     from tavf_mapkit.opendrive import load_opendrive
     from tavf_mapkit.view.mapdata import build_map_data, display_georeference
     from tavf_mapkit.view.runs import load_run
     from tavf_mapkit.view.scene import scene_data
+    from twin.sim.build import Build
 
     build = Build.open(build_path)
     odr = load_opendrive(build.xodr)

@@ -267,11 +267,10 @@ def _page_map(context, odr, findings: list, matched) -> tuple[str, str]:
     """(head, body) of the page's 2D map (tavf_mapkit.view: the same map as ``mapkit view``), or a note
     when the map cannot be drawn (the check itself stands)."""
     from tavf_mapkit.errors import MapkitError
-    from tavf_mapkit.view.mapdata import map_data, repair_counts
-    from tavf_mapkit.view.page import static_map
-
     from tavf_mapkit.pipeline.manifest import OSM_ATTRIBUTION
     from tavf_mapkit.pipeline.summary import derived_from_osm
+    from tavf_mapkit.view.mapdata import map_data, repair_counts
+    from tavf_mapkit.view.page import static_map
 
     repairs = (context.facts.get("opendrive") or {}).get("repairs")
     attribution = OSM_ATTRIBUTION if derived_from_osm(context.input_path, context.input_kind) else None
