@@ -23,11 +23,20 @@ TWIN = str(Path(sys.executable).parent / "twin")
 
 @pytest.fixture(scope="module")
 def sample_run(sample_build_dir, tmp_path_factory) -> Path:
-    """A short real drive on the sample build with SUMO vehicles and pedestrians."""
+    """A short real drive on the sample build with SUMO vehicles and pedestrians, asking a local UDM seeded
+    with the build's objects."""
+    from twin.udm.seed import seed_from_build
+    from twin.udm.server import ServerThread, create_app
+    from twin.udm.store import SqliteRtreeStore
+
     out = tmp_path_factory.mktemp("view-run") / "run"
-    subprocess.run([TWIN, "drive", "--map", str(sample_build_dir), "--random", "--duration", "6", "--seed", "1",
-                    "--traffic", "4", "--pedestrians", "2", "--no-plot", "--out", str(out)],
-                   check=True, capture_output=True, timeout=300)
+    store = SqliteRtreeStore()
+    seed_from_build(store, sample_build_dir)
+    with ServerThread(create_app(store, "token")) as server:
+        subprocess.run([TWIN, "drive", "--map", str(sample_build_dir), "--random", "--duration", "6", "--seed",
+                        "1", "--traffic", "4", "--pedestrians", "2", "--udm", server.url, "--udm-bbox", "400",
+                        "--no-plot", "--out", str(out)], check=True, capture_output=True, timeout=300)
+    store.close()
     return out
 
 
@@ -128,6 +137,41 @@ def test_run_replays_the_ego_as_recorded(client, sample_run):
         assert len(frame["ids"]) == len(frame["x"]) == len(frame["lat"]) == len(frame["lon"]) == len(frame["person"])
     assert run["lidar"] is None and any("lidar" in note for note in run["notes"])
     assert client.get("/api/runs/1").status_code == 404
+
+
+def test_run_replays_the_udm_answers(client, sample_run, sample_build_dir):
+    """Every UDM answer the drive recorded, at its simulated time, its objects in WGS84 and in the local frame."""
+    from tavf_mapkit.opendrive import load_opendrive
+    from twin.recording.reader import read_recording
+
+    run = client.get("/api/runs/0").json()
+    recorded = read_recording(sample_run / "session.mcap").udm_responses
+    assert len(run["udm"]) == len(recorded) > 0
+    georef = load_opendrive(next(sample_build_dir.glob("*.xodr"))).georeference
+    duration = run["ego"]["t"][-1]
+    for answer, record in zip(run["udm"], recorded):
+        assert answer["step"] == record["step"] and 0 <= answer["t"] <= duration + 1.0
+        assert [o["id"] for o in answer["objects"]] == [f["id"] for f in record["features"]]
+        for obj in answer["objects"]:
+            x, y = georef.wgs84_to_local(obj["lon"], obj["lat"])
+            assert (obj["x"], obj["y"]) == pytest.approx((float(x), float(y)), abs=1e-3)
+    assert any(answer["objects"] for answer in run["udm"] if answer["status"] == "ok")
+
+
+def test_a_run_of_another_build_is_shown_with_a_note(sample_build_dir, sample_run, tmp_path):
+    import shutil
+
+    from tavf_mapkit.view.server import load_view_data
+
+    other = tmp_path / "other"
+    shutil.copytree(sample_build_dir, other)
+    manifest = json.loads((other / "manifest.json").read_text())
+    manifest["artifacts"]["xodr"]["sha256"] = "0" * 64  # another build of the map
+    (other / "manifest.json").write_text(json.dumps(manifest))
+    [run] = [json.loads(body) for body in load_view_data(other, [sample_run]).runs]
+    assert run["notes"][0] == "driven on another build of the map (its OpenDRIVE sha256 differs)"
+    [same] = [json.loads(body) for body in load_view_data(sample_build_dir, [sample_run]).runs]
+    assert not any("another build" in note for note in same["notes"])
 
 
 def test_page_and_vendored_scripts_are_served(client):
