@@ -189,9 +189,13 @@
         "<div><i style='background:" + laneColour(t) + "'></i>" + esc(t) + " " + types[t] + "</div>");
       const severities = Object.keys(SEVERITY).map((s) =>
         "<div><i class='dot' style='background:" + SEVERITY[s] + "'></i>" + s + "</div>");
+      const repairs = (data.repair_counts || []).map((r) =>
+        "<div>" + esc(r.repair) + (r.count !== null ? " " + esc(r.count) : "") + "</div>");
       div.innerHTML = "<b>" + esc(data.name) + "</b><div class='small'>" + data.lane_count + " lanes" +
         (data.placed_at_null_island ? ", no geoReference: placed at 0&deg;N 0&deg;E" : "") + "</div>" +
-        rows.join("") + "<div class='small'>findings</div>" + severities.join("");
+        rows.join("") + "<div class='small'>findings (" + (data.findings_total || 0) + ")</div>" +
+        severities.join("") + (repairs.length ? "<details class='small'><summary>repairs made by the build (" +
+        repairs.length + " kinds)</summary>" + repairs.join("") + "</details>" : "");
       L.DomEvent.disableClickPropagation(div);
       return div;
     };
