@@ -100,6 +100,7 @@ class Fanout:
     def __init__(self, client):
         self.client = client
         self._shared: dict[str, object] = {}  # sha256 -> future of the scattered bytes
+        self._kept: list = []                 # futures of work started ahead (a released future is cancelled)
 
     @property
     def workers(self) -> int:
@@ -132,6 +133,13 @@ class Fanout:
             future.release()
             yield result
 
+    def everywhere(self, function: Callable, *args) -> None:
+        """Start ``function(*args)`` once on every worker there is now, without waiting for it: work a worker's
+        later tasks need (loading the map) done while the client still prepares them."""
+        for address in self.client.scheduler_info(n_workers=-1).get("workers", {}):
+            self._kept.append(self.client.submit(function, *args, workers=[address], allow_other_workers=True,
+                                                 pure=False))
+
     def share(self, data: bytes) -> tuple[str, object]:
         """(sha256, future) of bytes placed on the cluster once. On every worker there is now (broadcast): data
         scattered to one worker only would be lost with it, and tasks cannot make it again; a worker that joins
@@ -158,6 +166,9 @@ class FileFanout:
     def map(self, function: Callable, arguments: Iterable[tuple], window: int | None = None) -> Iterator:
         return self.fanout.map(function, ((self.digest, self.future, self.name, *args) for args in arguments),
                                window)
+
+    def everywhere(self, function: Callable, *args) -> None:
+        self.fanout.everywhere(function, self.digest, self.future, self.name, *args)
 
 
 # -- the worker's side --------------------------------------------------------------------------------------

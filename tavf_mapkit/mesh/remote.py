@@ -33,6 +33,16 @@ def _map_and_units(digest: str, data: bytes, name: str):
     return odr, worker_cached(("mesh units", digest), lambda: mesh_units(odr))
 
 
+def preload(fanout) -> None:
+    """Every worker loads the map (and its mesh units) now, while the client loads its own copy and plans the
+    batches: on a cluster that load is hidden behind the client's instead of following it."""
+    fanout.everywhere(_preload_task)
+
+
+def _preload_task(digest, data, name) -> None:
+    _map_and_units(digest, data, name)
+
+
 def _replay(stores: dict, records: dict) -> None:
     """Chunks a task made, added to the client's stores in the order the task made them."""
     for name, chunks in records.items():

@@ -35,11 +35,17 @@ class MeshStage(Stage):
         from tavf_mapkit.mesh.folder import write_mesh_folder
 
         options = self.options(context)
+        # on a Dask cluster the tasks get the map's bytes (no shared filesystem); every worker starts loading it
+        # while this process loads its own copy
+        fanout = None
+        if context.fanout is not None:
+            from tavf_mapkit.mesh.remote import preload
+
+            fanout = context.fanout.with_file(context.artifacts["xodr"])
+            preload(fanout)
         odr = context.opendrive()
         osm_path = context.osm_source()
         folder = context.output_path("mesh/mesh.json").parent
-        # on a Dask cluster the tasks get the map's bytes (no shared filesystem) and load it once per worker
-        fanout = None if context.fanout is None else context.fanout.with_file(context.artifacts["xodr"])
         summary = write_mesh_folder(odr, folder, options["eps"], options["format"], options["tile"],
                                     osm_path=osm_path, solids=options["solids"], progress=context.progress,
                                     fanout=fanout)
