@@ -81,7 +81,8 @@ def connect(workers: int | None = None, scheduler: str | None = None,
         try:
             client.wait_for_workers(1, timeout=timeout)
         except (OSError, TimeoutError):
-            raise StageError(f"the Dask scheduler at {scheduler} has no worker (waited {timeout:g} s)") from None
+            where = f"the Dask scheduler at {scheduler}" if scheduler else "the local Dask cluster"
+            raise StageError(f"{where} has no worker (waited {timeout:g} s)") from None
         yield Fanout(client)
     finally:
         client.close()
