@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/bench_udm_overhead.py [--build build/tavf-dlr] [--requests 300] [--rounds 2]
 
-Starts ``twin udm serve --seed BUILD`` as its own process on a free loopback port (so the server never
+Starts ``twin udm serve --map BUILD`` as its own process on a free loopback port (so the server never
 shares an interpreter with the twin), then runs ``twin udm bench`` -- a real drive with the UDM hook, and the
 same requests sent standalone -- ``--rounds`` times, with the twin's client in a child process (the default)
 and, as the peer, in a thread beside the simulation. Prints a table against the target overhead ratio
@@ -40,7 +40,7 @@ def ensure_build(build: Path) -> Path:
 
 
 def start_server(build: Path) -> tuple[subprocess.Popen, str]:
-    command = [sys.executable, "-m", "twin.cli.main", "udm", "serve", "--port", "0", "--seed", str(build),
+    command = [sys.executable, "-m", "twin.cli.main", "udm", "serve", "--port", "0", "--map", str(build),
                "--token", "bench"]
     process = subprocess.Popen(command, stdout=subprocess.PIPE, text=True, cwd=REPO)
     first = process.stdout.readline()
@@ -65,7 +65,7 @@ def start_server(build: Path) -> tuple[subprocess.Popen, str]:
 
 def run(build: Path, url: str, requests: int, client: str, pace: float | None) -> dict:
     command = [sys.executable, "-m", "twin.cli.main", "udm", "bench", "--map", str(build), "--url", url,
-               "--requests", str(requests), "--client", client]
+               "--requests", str(requests), "--client", client, "--json"]
     if pace:
         command += ["--pace", str(pace)]
     result = subprocess.run(command, capture_output=True, text=True, check=True, cwd=REPO)

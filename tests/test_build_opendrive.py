@@ -87,7 +87,7 @@ def test_drive_keeps_left_of_the_reference_line(lht_build, tmp_path):
     _, out = lht_build
     runs = tmp_path / "run"
     result = CliRunner().invoke(twin_cli, ["drive", "--map", str(out), "--random", "--duration", "120",
-                                           "--seed", "0", "--out", str(runs), "--no-plot", "--no-record"],
+                                           "--seed", "0", "-o", str(runs), "--no-plot", "--no-record"],
                                 catch_exceptions=False)
     assert result.exit_code == 0, result.output
     metrics = json.loads((runs / "metrics.json").read_text())
@@ -114,7 +114,7 @@ def test_traffic_needs_a_sumo_network(lht_build, tmp_path):
 
     _, out = lht_build
     result = CliRunner().invoke(twin_cli, ["drive", "--map", str(out), "--random", "--duration", "5",
-                                           "--traffic", "3", "--out", str(tmp_path / "run")])
+                                           "--traffic", "3", "-o", str(tmp_path / "run")])
     assert result.exit_code == 2
     lines = [line for line in result.output.splitlines() if line.startswith("Error")]
     assert lines == [f"Error: {out}: the build was made from an OpenDRIVE file and has no SUMO network, which "

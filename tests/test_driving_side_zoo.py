@@ -99,7 +99,7 @@ def test_zoo_map_is_built_and_driven_on_its_side(zoo_file, bbox, side, country, 
 
     run = tmp_path / "run"
     result = CliRunner().invoke(twin_cli, ["drive", "--map", str(build), "--random", "--duration", "150", "--seed",
-                                           "0", "--traffic", "15", "--out", str(run), "--no-plot"],
+                                           "0", "--traffic", "15", "-o", str(run), "--no-plot"],
                                 catch_exceptions=False)
     assert result.exit_code == 0, result.output
     lanes = OncomingLanes(build / "build.xodr")

@@ -231,8 +231,8 @@ def test_krautsand_drives_ten_minutes_turning_around_at_its_dead_ends(krautsand_
     runs = []
     for name in ("a", "b"):
         result = CliRunner().invoke(cli, ["drive", "--map", str(krautsand_build), "--random", "--duration",
-                                          "600", "--seed", "0", "--out", str(tmp_path / name), "--no-record",
-                                          "--no-plot", "--format", "json"])
+                                          "600", "--seed", "0", "-o", str(tmp_path / name), "--no-record",
+                                          "--no-plot", "--json"])
         assert result.exit_code == 0, result.output
         runs.append(json.loads(result.output))
     metrics = runs[0]

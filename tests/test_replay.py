@@ -19,7 +19,7 @@ from twin.udm.model import UdmObject
 from twin.udm.server import ServerThread, create_app
 from twin.udm.store import SqliteRtreeStore
 
-DRIVE = ["--random", "--duration", "14", "--seed", "2", "--no-plot", "--format", "json"]
+DRIVE = ["--random", "--duration", "14", "--seed", "2", "--no-plot", "--json"]
 
 
 def twin(*args: str):
@@ -36,7 +36,7 @@ def trajectory(out):
 def hazard_drive(sample_build_dir, tmp_path_factory):
     """A drive without UDM, then the same drive with roadworks reported on its path from the UDM."""
     root = tmp_path_factory.mktemp("replay")
-    result = twin("drive", "--map", str(sample_build_dir), "--out", str(root / "plain"), "--no-record", *DRIVE)
+    result = twin("drive", "--map", str(sample_build_dir), "-o", str(root / "plain"), "--no-record", *DRIVE)
     assert result.exit_code == 0, result.output
     plain = trajectory(root / "plain")
     index = int(np.argmin(np.abs(plain["t"] - 9.0)))
@@ -45,7 +45,7 @@ def hazard_drive(sample_build_dir, tmp_path_factory):
     store.upsert([UdmObject(id="roadworks-1", layer=3, type="roadworks", lat=float(plain["lat"][index]),
                             lon=float(plain["lon"][index]), source="test")])
     with ServerThread(create_app(store, "token")) as server:
-        result = twin("drive", "--map", str(sample_build_dir), "--out", str(root / "udm"), "--udm", server.url,
+        result = twin("drive", "--map", str(sample_build_dir), "-o", str(root / "udm"), "--udm", server.url,
                       *DRIVE)
     assert result.exit_code == 0, result.output
     return root, plain, (plain["x"][index], plain["y"][index])
@@ -66,7 +66,7 @@ def test_udm_roadworks_slow_the_car_down(hazard_drive):
 @pytest.mark.slow
 def test_resimulation_reproduces_the_drive_exactly(hazard_drive):
     root, _, _ = hazard_drive
-    result = twin("replay", "--resimulate", str(root / "udm" / "session.mcap"), "--format", "json")
+    result = twin("replay", "--resimulate", str(root / "udm" / "session.mcap"), "--json")
     assert result.exit_code == 0, result.output
     report = json.loads(result.output)
     assert report["identical"] and report["max_difference_overall"] == 0.0
@@ -120,7 +120,7 @@ def test_a_recording_cut_short_is_resimulated_as_far_as_it_goes(hazard_drive, tm
     cut.write_bytes(data[: len(data) // 2])
     recording = read_recording(cut)
     assert not recording.complete and 0 < len(recording.ego_states) < 281
-    result = twin("replay", "--resimulate", str(cut), "--format", "json")
+    result = twin("replay", "--resimulate", str(cut), "--json")
     assert result.exit_code == 0, result.output
     report = json.loads(result.output)
     assert report["identical"] and report["steps_compared"] == len(recording.ego_states)
@@ -131,7 +131,7 @@ def test_a_recording_cut_short_is_resimulated_as_far_as_it_goes(hazard_drive, tm
 def test_kinematic_replay_prints_the_recorded_trajectory(hazard_drive, tmp_path):
     root, _, _ = hazard_drive
     out = tmp_path / "replayed.csv"
-    result = twin("replay", str(root / "udm" / "session.mcap"), "--out", str(out))
+    result = twin("replay", str(root / "udm" / "session.mcap"), "-o", str(out))
     assert result.exit_code == 0, result.output
     with out.open(newline="") as handle:
         replayed = list(csv.DictReader(handle))
@@ -169,12 +169,12 @@ def test_resimulation_refuses_a_different_map(hazard_drive, sample_build_dir, tm
 @pytest.mark.slow
 def test_resimulation_compares_the_sumo_traffic_too(sample_build_dir, tmp_path):
     out = tmp_path / "traffic"
-    result = twin("drive", "--map", str(sample_build_dir), "--out", str(out), "--random", "--duration", "12",
-                  "--seed", "3", "--traffic", "8", "--no-plot", "--format", "json")
+    result = twin("drive", "--map", str(sample_build_dir), "-o", str(out), "--random", "--duration", "12",
+                  "--seed", "3", "--traffic", "8", "--no-plot", "--json")
     assert result.exit_code == 0, result.output
     ticks = read_recording(out / "session.mcap").messages("/traffic")
     assert len(ticks) >= 100 and any(tick.data["ids"] for tick in ticks)
-    result = twin("replay", "--resimulate", str(out / "session.mcap"), "--format", "json")
+    result = twin("replay", "--resimulate", str(out / "session.mcap"), "--json")
     assert result.exit_code == 0, result.output
     report = json.loads(result.output)
     assert report["identical"] and report["traffic_recorded"] == report["traffic_resimulated"] == len(ticks)

@@ -31,7 +31,7 @@ def perth(tmp_path_factory) -> Path:
 def drive_metrics(build: Path, seed: int, out: Path) -> dict:
     """``twin drive`` of one seed on its own, with the options a sweep gives every run."""
     subprocess.run([TWIN, "drive", "--map", str(build), "--random", "--duration", DURATION, "--seed", str(seed),
-                    "--no-plot", "--no-record", "--out", str(out)], check=True, capture_output=True, timeout=600)
+                    "--no-plot", "--no-record", "-o", str(out)], check=True, capture_output=True, timeout=600)
     return json.loads((out / "metrics.json").read_text())
 
 

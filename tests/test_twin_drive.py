@@ -33,8 +33,8 @@ def rows(path: Path) -> list[dict]:
 @pytest.fixture(scope="module")
 def random_drive(sample_build_dir, tmp_path_factory):
     out = tmp_path_factory.mktemp("drive") / "random"
-    result = drive("--map", sample_build_dir, "--random", "--duration", 60, "--seed", 4, "--out", out,
-                   "--no-record", "--format", "json")
+    result = drive("--map", sample_build_dir, "--random", "--duration", 60, "--seed", 4, "-o", out,
+                   "--no-record", "--json")
     assert result.exit_code == 0, result.output
     return out, json.loads(result.output)
 
@@ -75,7 +75,7 @@ def test_same_seed_gives_byte_identical_trajectories(sample_build_dir, tmp_path)
     outputs = []
     for name, seed in (("a", 9), ("b", 9), ("c", 10)):
         result = drive("--map", sample_build_dir, "--random", "--duration", 20, "--seed", seed, "--gnss-noise", 1.0,
-                       "--out", tmp_path / name, "--no-record", "--no-plot")
+                       "-o", tmp_path / name, "--no-record", "--no-plot")
         assert result.exit_code == 0, result.output
         outputs.append((tmp_path / name / "trajectory.csv").read_bytes() + (tmp_path / name / "gnss.csv").read_bytes())
     assert outputs[0] == outputs[1]
@@ -90,7 +90,7 @@ def test_a_finer_step_drives_the_same_path(sample_build_dir, tmp_path):
     paths, files = {}, {}
     for name, dt in (("a", 0.05), ("b", 0.025), ("c", 0.025)):
         result = drive("--map", sample_build_dir, "--random", "--duration", 60, "--seed", 3, "--controller", "pid",
-                       "--dt", dt, "--out", tmp_path / name, "--no-record", "--no-plot")
+                       "--dt", dt, "-o", tmp_path / name, "--no-record", "--no-plot")
         assert result.exit_code == 0, result.output
         files[name] = (tmp_path / name / "trajectory.csv").read_bytes()
         table = rows(tmp_path / name / "trajectory.csv")
@@ -113,7 +113,7 @@ def test_pacing_holds_the_drive_to_its_rate_and_changes_nothing_else(sample_buil
     outputs = []
     for name, pace in (("free", ()), ("paced", ("--pace", 10))):
         result = drive("--map", sample_build_dir, "--random", "--duration", 3, "--seed", 4, *pace,
-                       "--out", tmp_path / name, "--no-record", "--no-plot")
+                       "-o", tmp_path / name, "--no-record", "--no-plot")
         assert result.exit_code == 0, result.output
         outputs.append((tmp_path / name / "trajectory.csv").read_bytes())
     metrics = json.loads((tmp_path / "paced" / "metrics.json").read_text())
@@ -181,38 +181,38 @@ def test_a_plug_in_given_bad_input_stops_the_drive_with_one_line(sample_build_di
     build = tmp_path / "sample"
     shutil.copytree(sample_build_dir, build)
     (build / "sample.net.xml").unlink()
-    result = drive("--map", build, "--random", "--duration", 2, "--traffic", 3, "--out", tmp_path / "o")
+    result = drive("--map", build, "--random", "--duration", 2, "--traffic", 3, "-o", tmp_path / "o")
     _one_line_error(result, "sample.net.xml")
     assert not (tmp_path / "o").exists()
 
 
 def test_bad_input_is_one_line_and_exit_2(sample_build_dir, tmp_path):
-    _one_line_error(drive("--map", tmp_path, "--random", "--out", tmp_path / "o"), "not a build folder")
-    _one_line_error(drive("--map", tmp_path / "missing", "--random", "--out", tmp_path / "o"), "not a build")
+    _one_line_error(drive("--map", tmp_path, "--random", "-o", tmp_path / "o"), "not a build folder")
+    _one_line_error(drive("--map", tmp_path / "missing", "--random", "-o", tmp_path / "o"), "not a build")
     empty = tmp_path / "empty.csv"
     empty.write_text("lat,lon,time\n")
-    _one_line_error(drive("--map", sample_build_dir, "--route", empty, "--out", tmp_path / "o"), "empty.csv")
+    _one_line_error(drive("--map", sample_build_dir, "--route", empty, "-o", tmp_path / "o"), "empty.csv")
     far = tmp_path / "berlin.csv"
     far.write_text("lat,lon\n" + "".join(f"52.52{i},13.40{i}\n" for i in range(10)))
-    _one_line_error(drive("--map", sample_build_dir, "--route", far, "--out", tmp_path / "o"), "outside the map")
+    _one_line_error(drive("--map", sample_build_dir, "--route", far, "-o", tmp_path / "o"), "outside the map")
     bag = tmp_path / "broken.bag"
     bag.write_bytes(b"#ROSBAG V2.0\n" + bytes(range(256)) * 4)
-    _one_line_error(drive("--map", sample_build_dir, "--route", bag, "--out", tmp_path / "o"), "broken.bag")
+    _one_line_error(drive("--map", sample_build_dir, "--route", bag, "-o", tmp_path / "o"), "broken.bag")
     assert not (tmp_path / "o").exists()
 
 
 def test_output_folder_that_is_not_ours_is_refused(sample_build_dir, tmp_path):
     (tmp_path / "mine").mkdir()
     (tmp_path / "mine" / "thesis.tex").write_text("keep me")
-    _one_line_error(drive("--map", sample_build_dir, "--random", "--duration", 1, "--out", tmp_path / "mine"),
+    _one_line_error(drive("--map", sample_build_dir, "--random", "--duration", 1, "-o", tmp_path / "mine"),
                     "not a twin drive output folder")
     assert (tmp_path / "mine" / "thesis.tex").read_text() == "keep me"
 
 
 @pytest.mark.slow
 def test_half_an_hour_of_random_routes_without_reset_or_off_road(sample_build_dir, tmp_path):
-    result = drive("--map", sample_build_dir, "--random", "--duration", 1800, "--seed", 0, "--out", tmp_path / "o",
-                   "--no-record", "--no-plot", "--format", "json")
+    result = drive("--map", sample_build_dir, "--random", "--duration", 1800, "--seed", 0, "-o", tmp_path / "o",
+                   "--no-record", "--no-plot", "--json")
     assert result.exit_code == 0, result.output
     metrics = json.loads(result.output)
     assert metrics["sim_seconds"] == 1800.0 and metrics["distance_m"] > 10_000
@@ -224,8 +224,8 @@ def test_half_an_hour_on_the_tavf_build_never_meets_a_junction_curb(tavf_dlr_bui
     # netconvert's TAVF junctions have right turns tighter than the car turns; their curbs must leave room
     world = json.loads((tavf_dlr_build / "collision" / "world.json").read_text())
     assert world["solids"]["curb"] > 300  # the junction curbs are there
-    result = drive("--map", tavf_dlr_build, "--random", "--duration", 1800, "--seed", 0, "--out", tmp_path / "o",
-                   "--no-record", "--no-plot", "--format", "json")
+    result = drive("--map", tavf_dlr_build, "--random", "--duration", 1800, "--seed", 0, "-o", tmp_path / "o",
+                   "--no-record", "--no-plot", "--json")
     assert result.exit_code == 0, result.output
     metrics = json.loads(result.output)
     assert metrics["distance_m"] > 10_000
@@ -235,8 +235,8 @@ def test_half_an_hour_on_the_tavf_build_never_meets_a_junction_curb(tavf_dlr_bui
 @pytest.mark.slow
 def test_replaying_the_shared_ride_lands_on_the_recording(tavf_dlr_build, tmp_path):
     ride = shared_path("hamburg", "gnss_ride_b4", "thomas.json")
-    result = drive("--map", tavf_dlr_build, "--route", ride, "--out", tmp_path / "o", "--no-record", "--no-plot",
-                   "--format", "json")
+    result = drive("--map", tavf_dlr_build, "--route", ride, "-o", tmp_path / "o", "--no-record", "--no-plot",
+                   "--json")
     assert result.exit_code == 0, result.output
     metrics = json.loads(result.output)
     assert metrics["trace_fixes"] == 587 and metrics["trace_fixes_matched"] > 400

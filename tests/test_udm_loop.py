@@ -26,7 +26,7 @@ DURATION = "8"
 
 def twin_drive(build, out, *extra: str) -> dict:
     result = CliRunner().invoke(cli, ["drive", "--map", str(build), "--random", "--duration", DURATION, "--seed",
-                                      "4", "--out", str(out), "--no-plot", "--format", "json", *extra],
+                                      "4", "-o", str(out), "--no-plot", "--json", *extra],
                                 catch_exceptions=False)
     assert result.exit_code == 0, result.output
     return json.loads(result.output[result.output.index("{"):])

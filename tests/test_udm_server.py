@@ -283,7 +283,7 @@ def write_tiny_build(folder):
 def test_serve_command_seeds_a_build_and_answers(tmp_path):
     build = write_tiny_build(tmp_path / "build")
     db = tmp_path / "udm.sqlite"
-    command = [sys.executable, "-m", "twin.cli.main", "udm", "serve", "--port", "0", "--seed", str(build),
+    command = [sys.executable, "-m", "twin.cli.main", "udm", "serve", "--port", "0", "--map", str(build),
                "--db", str(db)]
     process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                env={"TWIN_UDM_TOKEN": TOKEN, "PATH": "/usr/bin:/bin"})
@@ -312,7 +312,7 @@ def test_serve_command_seeds_a_build_and_answers(tmp_path):
 
 
 def test_serve_command_reports_a_missing_seed_folder_in_one_line(tmp_path):
-    result = subprocess.run([sys.executable, "-m", "twin.cli.main", "udm", "serve", "--seed",
+    result = subprocess.run([sys.executable, "-m", "twin.cli.main", "udm", "serve", "--map",
                              str(tmp_path / "nope")], capture_output=True, text=True, timeout=30, check=False)
     assert result.returncode == 2
     assert result.stderr.strip().count("\n") == 0 and "does not exist" in result.stderr

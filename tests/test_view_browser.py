@@ -67,7 +67,7 @@ def perth(tmp_path_factory) -> Path:
 def perth_run(perth, tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("perth-run") / "run"
     subprocess.run([str(BIN / "twin"), "drive", "--map", str(perth), "--random", "--duration", "20", "--seed", "0",
-                    "--traffic", "6", "--pedestrians", "3", "--no-plot", "--out", str(out)],
+                    "--traffic", "6", "--pedestrians", "3", "--no-plot", "-o", str(out)],
                    check=True, capture_output=True, timeout=300)
     return out
 

@@ -35,7 +35,7 @@ def sample_run(sample_build_dir, tmp_path_factory) -> Path:
     with ServerThread(create_app(store, "token")) as server:
         subprocess.run([TWIN, "drive", "--map", str(sample_build_dir), "--random", "--duration", "6", "--seed",
                         "1", "--traffic", "4", "--pedestrians", "2", "--udm", server.url, "--udm-bbox", "400",
-                        "--no-plot", "--out", str(out)], check=True, capture_output=True, timeout=300)
+                        "--no-plot", "-o", str(out)], check=True, capture_output=True, timeout=300)
     store.close()
     return out
 

@@ -7,11 +7,14 @@ import sys
 
 import click
 
+from tavf_mapkit.cli.options import Command
 from tavf_mapkit.errors import MapkitError
 
 
 class LazyGroup(click.Group):
     """Subcommands are ``{name: "package.module:attribute"}``; importing them lazily keeps ``--help`` fast."""
+
+    command_class = Command  # ``@group.command(renamed=...)`` understands the spellings of the last release
 
     def __init__(self, *args, lazy_commands: dict[str, str] | None = None, **kwargs):
         super().__init__(*args, **kwargs)

@@ -9,6 +9,7 @@ import click
 
 from tavf_mapkit import __version__
 from tavf_mapkit.cli.lazy import LazyGroup
+from tavf_mapkit.cli.options import verbosity_options
 
 COMMANDS = {
     "info": "tavf_mapkit.cli.info:info",
@@ -26,6 +27,7 @@ COMMANDS = {
 
 @click.group(cls=LazyGroup, lazy_commands=COMMANDS, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="mapkit")
+@verbosity_options
 def cli() -> None:
     """Turn real city map data into a driving-simulation world.
 
@@ -33,6 +35,10 @@ def cli() -> None:
     $ mapkit build osm-extract.osm          # OSM -> OpenDRIVE -> meshes -> collision world
     $ mapkit info build/tavf/tavf.xodr      # what an OpenDRIVE file holds, and where on Earth
     $ mapkit export map.xodr --layer lane-border --format csv -o borders.csv
+    $ mapkit validate map.xodr --json | jq .summary
+
+    Every command writes its output where -o/--output says and prints JSON for machines with --json
+    (--format names a file format); -v/-q before the command set how much it logs.
     """
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+import logging
 from pathlib import Path
 
 import click
@@ -53,3 +55,100 @@ def area_from(bbox, polygon: Path | None):
 
         return load_polygon(polygon)
     return bbox
+
+
+# -- verbosity: -v/-q belong to the group, which configures logging once for every subcommand ----------------
+
+_VERBOSITY = "tavf.verbosity"  # key in click's ctx.meta, which the group's context shares with its subcommands
+_LEVELS = {-1: logging.ERROR, 0: logging.WARNING, 1: logging.INFO, 2: logging.DEBUG}
+
+
+def verbosity_options(group_function):
+    """``-v/--verbose`` and ``-q/--quiet`` (counted, as rasterio's ``rio -v``) on a command group."""
+
+    @click.option("-v", "--verbose", count=True, help="Log more: -v info, -vv debug.")
+    @click.option("-q", "--quiet", count=True,
+                  help="Log errors only, and no progress lines (same as the -q of build and sweep).")
+    @functools.wraps(group_function)
+    def group(verbose: int, quiet: int, **kwargs):
+        set_verbosity(verbose - quiet)
+        return group_function(**kwargs)
+
+    return group
+
+
+def set_verbosity(verbosity: int) -> None:
+    """Remember the verbosity for the subcommands and set the log level (one place for the whole CLI)."""
+    click.get_current_context().meta[_VERBOSITY] = verbosity
+    # basicConfig is a no-op when the host (pytest, an embedding program) already set logging up
+    logging.basicConfig(format="%(levelname)s %(name)s: %(message)s")
+    logging.getLogger().setLevel(log_level(verbosity))
+
+
+def verbosity() -> int:
+    """The group's -v count minus its -q count (0 when a command runs without its group, as in some tests)."""
+    ctx = click.get_current_context(silent=True)
+    return ctx.meta.get(_VERBOSITY, 0) if ctx is not None else 0
+
+
+def log_level(verbosity: int) -> int:
+    return _LEVELS[max(-1, min(2, verbosity))]
+
+
+# -- the spellings of the previous release, understood for one more with a note on stderr --------------------
+
+#: ``--format text|json`` became ``--json`` (``--format`` is for file formats only)
+FORMAT_TO_JSON = {"json": ("--json",), "text": ()}
+
+
+class Command(click.Command):
+    """A command that still understands options renamed in the last release.
+
+    ``renamed`` maps an old option to its new spelling, or (for an old option with a value) to a dict from
+    the old value to the tokens that replace option and value (``FORMAT_TO_JSON``). The arguments are
+    rewritten before click parses them, so the old spellings are in no --help; each one used prints one line.
+    """
+
+    def __init__(self, *args, renamed: dict[str, str | dict[str, tuple[str, ...]]] | None = None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.renamed = dict(renamed or {})
+
+    def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
+        if self.renamed:
+            args = respelled(args, self.renamed, ctx.command_path)
+        return super().parse_args(ctx, args)
+
+
+class Group(click.Group):
+    """A group whose subcommands (made with ``@group.command()``) are :class:`Command` s."""
+
+    command_class = Command
+
+
+def respelled(args: list[str], renamed: dict, where: str) -> list[str]:
+    """``args`` with the old spellings in ``renamed`` replaced by the new ones (a note on stderr for each)."""
+    out: list[str] = []
+    tokens = iter(args)
+    for token in tokens:
+        if token == "--":  # the rest are arguments, whatever they look like
+            out += [token, *tokens]
+            break
+        name, equals, value = token.partition("=")
+        new = renamed.get(name)
+        if new is None:
+            out.append(token)
+        elif isinstance(new, str):
+            click.echo(f"{where}: {name} is deprecated, use {new} (the old spelling goes in the next release)",
+                       err=True)
+            out.append(new + equals + value)
+        else:
+            if not equals:
+                value = next(tokens, None)
+            if value not in new:  # not an old spelling after all: let click say what is wrong
+                out += [token] if equals or value is None else [token, value]
+                continue
+            instead = " ".join(new[value]) or "nothing (the default)"
+            click.echo(f"{where}: {name} {value} is deprecated, use {instead} (the old spelling goes in the next "
+                       "release)", err=True)
+            out += new[value]
+    return out

@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import json
-import logging
 from pathlib import Path
 
 import click
 
+from tavf_mapkit.cli.options import FORMAT_TO_JSON, Command, json_option
 from tavf_mapkit.errors import InputError
 
 
@@ -23,7 +23,8 @@ def _bias(value: str | None) -> tuple[float, float, float]:
     return parts
 
 
-@click.command(context_settings={"help_option_names": ["-h", "--help"]})
+@click.command(cls=Command, renamed={"--out": "--output", "--format": FORMAT_TO_JSON},
+               context_settings={"help_option_names": ["-h", "--help"]})
 @click.option("--map", "map_dir", required=True, type=click.Path(path_type=Path), metavar="BUILD",
               help="A build folder made by `mapkit build` (with its collision world).")
 @click.option("--route", type=click.Path(path_type=Path), metavar="TRACE",
@@ -61,8 +62,8 @@ def _bias(value: str | None) -> tuple[float, float, float]:
 @click.option("--camera/--no-camera", default=False, show_default=True,
               help="320 x 240 forward camera at 5 Hz (TinyRenderer); the last frame goes to camera.png.")
 @click.option("--gui", is_flag=True, help="Show the pybullet GUI (falls back to headless without a display).")
-@click.option("--out", "out_dir", type=click.Path(path_type=Path), default=Path("drive-out"), show_default=True,
-              metavar="DIR", help="Output folder (written to a temporary folder, then renamed into place).")
+@click.option("-o", "--output", "out_dir", type=click.Path(path_type=Path), default=Path("drive-out"),
+              show_default=True, metavar="DIR", help="Output folder (written to a temporary folder, then renamed into place).")
 @click.option("--no-plot", is_flag=True, help="Skip drive.png.")
 @click.option("--udm", metavar="URL", help="Query an Urban Dynamic Map at URL around each GNSS fix.")
 @click.option("--udm-every", type=click.IntRange(min=1), default=10, show_default=True, metavar="N",
@@ -77,18 +78,17 @@ def _bias(value: str | None) -> tuple[float, float, float]:
               help="SUMO pedestrians.")
 @click.option("--demand", type=click.Path(dir_okay=False, path_type=Path), metavar="ROUTES.rou.xml",
               help="SUMO demand file instead of generated traffic.")
-@click.option("--format", "output_format", type=click.Choice(["text", "json"]), default="text", show_default=True,
-              help="How to print the metrics.")
-@click.option("-v", "--verbose", count=True, help="Log more (-v info, -vv debug).")
+@json_option
 def drive(map_dir, route, route_mode, random_route, duration, seed, speed_kmh, controller, dt, pace, vehicles, gnss_rate, gnss_noise,
           gnss_bias, lidar, camera, gui, out_dir, no_plot, udm, udm_every, udm_bbox, record, traffic, pedestrians,
-          demand, output_format, verbose) -> None:
+          demand, as_json) -> None:
     """Drive a simulated Tesla Model S through a build and write what happened.
 
     \b
     $ twin drive --map build/sample --random --duration 60
-    $ twin drive --map build/tavf-dlr --route ride.json --out runs/ride
+    $ twin drive --map build/tavf-dlr --route ride.json -o runs/ride
     $ twin drive --map build/tavf-dlr --random --duration 1800 --seed 7 --gnss-noise 0.5
+    $ twin -v drive --map build/sample --random -o runs/a --json | jq .collisions
 
     Writes DIR/trajectory.csv (t,x,y,z,yaw,speed,lat,lon,road,lane), DIR/gnss.csv, DIR/imu.csv,
     DIR/collisions.csv, DIR/metrics.json and DIR/drive.png. Same seed and inputs give byte-identical
@@ -98,8 +98,6 @@ def drive(map_dir, route, route_mode, random_route, duration, seed, speed_kmh, c
     from twin.session.loop import Session
     from twin.session.plugins import create_hooks
 
-    logging.basicConfig(level=[logging.WARNING, logging.INFO, logging.DEBUG][min(verbose, 2)],
-                        format="%(levelname)s %(name)s: %(message)s")
     if route is not None and random_route:
         raise click.UsageError("choose one of --route and --random")
     if route is None and not random_route:
@@ -112,7 +110,7 @@ def drive(map_dir, route, route_mode, random_route, duration, seed, speed_kmh, c
                          plot=not no_plot, pace=pace, plugins=plugins)
     hooks = create_hooks(config.as_dict())
     metrics = Session(config, hooks).run()
-    if output_format == "json":
+    if as_json:
         click.echo(json.dumps(metrics, indent=2))
         return
     click.echo(f"drove {metrics['sim_seconds']:.1f} s ({metrics['distance_m']:.0f} m) in {metrics['wall_seconds']:.2f} s"

@@ -9,8 +9,11 @@ from pathlib import Path
 
 import click
 
+from tavf_mapkit.cli.options import FORMAT_TO_JSON, Command
 
-@click.command(context_settings={"help_option_names": ["-h", "--help"]})
+
+@click.command(cls=Command, renamed={"--out": "--output", "--format": FORMAT_TO_JSON},
+               context_settings={"help_option_names": ["-h", "--help"]})
 @click.argument("recording", type=click.Path(path_type=Path), metavar="SESSION.mcap")
 @click.option("--resimulate", is_flag=True,
               help="Run the drive again with the recorded configuration, seeds and UDM answers and compare "
@@ -23,16 +26,16 @@ import click
               help="Keep the re-simulation's outputs (trajectory.csv, session.mcap, ...) in DIR.")
 @click.option("--speed", type=click.FloatRange(min=0, min_open=True), metavar="X",
               help="Kinematic replay: print the states paced at X times real time (default: at once).")
-@click.option("--out", "out_file", type=click.Path(dir_okay=False, path_type=Path), metavar="FILE.csv",
+@click.option("-o", "--output", "out_file", type=click.Path(dir_okay=False, path_type=Path), metavar="FILE.csv",
               help="Kinematic replay: write the trajectory CSV here instead of printing it.")
-@click.option("--format", "output_format", type=click.Choice(["text", "json"]), default="text", show_default=True,
-              help="How to print the summary or the comparison.")
+@click.option("--json", "as_json", is_flag=True,
+              help="Print JSON for machines: the comparison (--resimulate), else a summary of the recording.")
 def replay(recording: Path, resimulate: bool, map_dir: Path | None, keep: Path | None, speed: float | None,
-           out_file: Path | None, output_format: str) -> None:
+           out_file: Path | None, as_json: bool) -> None:
     """Replay a drive recorded by `twin drive` (DIR/session.mcap).
 
     \b
-    $ twin replay runs/ride/session.mcap --out replayed.csv
+    $ twin replay runs/ride/session.mcap -o replayed.csv
     $ twin replay runs/ride/session.mcap --speed 1          # states as they happened, in real time
     $ twin replay --resimulate runs/ride/session.mcap
     identical: 1201 of 1201 steps, max difference 0 (x y z yaw speed ...)
@@ -49,10 +52,10 @@ def replay(recording: Path, resimulate: bool, map_dir: Path | None, keep: Path |
 
     if resimulate:
         if speed is not None or out_file is not None:
-            raise click.UsageError("--speed and --out are for the kinematic replay, not --resimulate")
+            raise click.UsageError("--speed and -o/--output are for the kinematic replay, not --resimulate")
         comparison = run_resimulation(recording, map_dir=map_dir, keep=keep)
         report = comparison.as_dict()
-        if output_format == "json":
+        if as_json:
             click.echo(json.dumps(report, indent=2))
         else:
             verdict = "identical" if comparison.identical else "DIFFERENT"
@@ -78,7 +81,7 @@ def replay(recording: Path, resimulate: bool, map_dir: Path | None, keep: Path |
 
     read = read_recording(recording)
     rows = list(trajectory_rows(read))
-    if output_format == "json" and out_file is None and speed is None:
+    if as_json and out_file is None and speed is None:
         first, last = rows[0], rows[-1]
         click.echo(json.dumps({"steps": len(rows), "t_start": first["t"], "t_end": last["t"],
                                "complete": read.complete, "config": read.config.get("config"),

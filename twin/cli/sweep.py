@@ -9,6 +9,7 @@ from pathlib import Path
 
 import click
 
+from tavf_mapkit.cli.options import verbosity
 from tavf_mapkit.cluster import check_cluster_options, wants_cluster
 from tavf_mapkit.errors import StageError
 
@@ -35,9 +36,11 @@ from tavf_mapkit.errors import StageError
 @click.option("-o", "--output", type=click.Path(file_okay=False, path_type=Path), required=True, metavar="DIR",
               help="Sweep folder: sweep.csv, sweep.json and runs/seed-N/ (metrics.json, collisions.csv, "
                    "udm_latency.csv); written beside it and swapped in when complete.")
-@click.option("-q", "--quiet", is_flag=True, help="No line per finished run.")
+@click.option("-q", "--quiet", is_flag=True, help="No line per finished run (`twin -q sweep` too).")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary (sweep.json's) as JSON for machines.")
 def sweep(map_dir: Path, seeds: str, duration: float, traffic: int, udm: str | None, pace: float | None,
-          workers: int | None, scheduler: str | None, deadline: float | None, output: Path, quiet: bool) -> None:
+          workers: int | None, scheduler: str | None, deadline: float | None, output: Path, quiet: bool,
+          as_json: bool) -> None:
     """Drive one build with many seeds and tabulate the runs.
 
     \b
@@ -45,6 +48,7 @@ def sweep(map_dir: Path, seeds: str, duration: float, traffic: int, udm: str | N
     $ twin sweep --map build/tavf --seeds 0-199 --traffic 20 --workers 2 -o sweeps/tavf
     $ twin sweep --map build/tavf --seeds 0-199 --scheduler tcp://10.0.0.5:8786 -o sweeps/tavf
     $ twin sweep --map build/tavf --seeds 0-19 --udm http://127.0.0.1:8765 --duration 120 -o sweeps/udm
+    $ twin -q sweep --map build/sample --seeds 0-3 -o sweeps/s --json | jq .worst
 
     Every run is `twin drive --map BUILD --random --seed N` in its own process, so the same seed gives the
     same drive on any worker. sweep.csv has one row per seed (status, resets, collisions, off-road seconds,
@@ -57,6 +61,7 @@ def sweep(map_dir: Path, seeds: str, duration: float, traffic: int, udm: str | N
     from twin.sweep.runs import drive_once
     from twin.sweep.table import COLUMNS, csv_text, run_row, summary
 
+    quiet = quiet or verbosity() < 0
     check_cluster_options(workers, scheduler)
     seed_list = parse_seeds(seeds)
     build = Build.open(map_dir)  # a one-line error for a folder that is not a build, before anything starts
@@ -104,11 +109,18 @@ def sweep(map_dir: Path, seeds: str, duration: float, traffic: int, udm: str | N
             for name, data in files.items():
                 (folder / name).write_bytes(data)
 
+    if as_json:
+        click.echo(json.dumps({**facts, "output": str(output)}, indent=2))
+    else:
+        _print_summary(facts, seconds, where, output)
+    if facts["ok"] < facts["runs"]:
+        raise StageError(f"{facts['runs'] - facts['ok']} of {facts['runs']} runs did not finish "
+                         f"(see {output / 'sweep.csv'})")
+
+
+def _print_summary(facts: dict, seconds: float, where: str, output: Path) -> None:
     click.echo(f"{facts['runs']} runs in {seconds:.1f} s on {where}: {facts['ok']} ok, {facts['failed']} failed, "
                f"{facts['timed_out']} timed out; {facts['collisions']} collisions, {facts['resets']} resets, "
                f"{facts['off_road_s']:.2f} s off-road -> {output}")
     for worst in facts["worst"]:
         click.echo(f"  worst: {worst['why']}")
-    if facts["ok"] < facts["runs"]:
-        raise StageError(f"{facts['runs'] - facts['ok']} of {facts['runs']} runs did not finish "
-                         f"(see {output / 'sweep.csv'})")

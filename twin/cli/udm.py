@@ -3,21 +3,23 @@
 from __future__ import annotations
 
 import json
+import logging
 import secrets
 import sqlite3
 from pathlib import Path
 
 import click
 
+from tavf_mapkit.cli.options import Group, json_option, log_level, verbosity
 from tavf_mapkit.errors import InputError
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(cls=Group, context_settings={"help_option_names": ["-h", "--help"]})
 def udm() -> None:
     """A local Urban Dynamic Map (UDM): an HTTP service of map objects near the car.
 
     \b
-    $ twin udm serve --seed build/sample --token s3cret
+    $ twin udm serve --map build/sample --token s3cret
     $ curl 'http://127.0.0.1:8765/objects?lat=53.55&lon=9.99&radius=150'
     $ twin udm bench-load --url http://127.0.0.1:8765 --vehicles 50 --rate 10 --duration 60
     $ twin udm bench --map build/tavf-dlr --url http://127.0.0.1:8765 --requests 200
@@ -26,7 +28,7 @@ def udm() -> None:
     """
 
 
-@udm.command()
+@udm.command(renamed={"--seed": "--map"})
 @click.option("--db", "db_path", type=click.Path(dir_okay=False, path_type=Path),
               help="SQLite file to keep objects in (created if missing). Default: in memory, gone on exit.")
 @click.option("--host", default="127.0.0.1", show_default=True,
@@ -36,20 +38,19 @@ def udm() -> None:
 @click.option("--token", envvar="TWIN_UDM_TOKEN", show_envvar=True,
               help="Bearer token data providers need for POST/DELETE. Default: a random one, printed at "
                    "start.")
-@click.option("--seed", "seed_dir", type=click.Path(file_okay=False, path_type=Path),
-              help="Build folder whose traffic signs and signals (OpenDRIVE signals and objects, OSM nodes, "
+@click.option("--map", "seed_dir", type=click.Path(file_okay=False, path_type=Path), metavar="BUILD",
+              help="Seed the map from this build folder: its traffic signs and signals (OpenDRIVE signals and objects, OSM nodes, "
                    "signals.geojson) become layer-2 objects before serving.")
 @click.option("--purge-interval", default=60.0, show_default=True, type=click.FloatRange(min=0.1),
               help="Seconds between deletions of expired objects (queries never return them anyway).")
-@click.option("--log-level", default="warning", show_default=True,
-              type=click.Choice(["critical", "error", "warning", "info", "debug"]),
-              help="uvicorn and UDM log level.")
+@click.option("--json", "as_json", is_flag=True,
+              help="Print the start line (url, store, objects, seeded, a generated token) as one JSON line.")
 def serve(db_path: Path | None, host: str, port: int, token: str | None, seed_dir: Path | None,
-          purge_interval: float, log_level: str) -> None:
+          purge_interval: float, as_json: bool) -> None:
     """Serve the UDM over HTTP until Ctrl-C.
 
     \b
-    $ twin udm serve --seed build/sample
+    $ twin udm serve --map build/sample
     UDM http://127.0.0.1:8765  store=memory  objects=426  (seeded: osm 412, signals.geojson 0, opendrive 14)
     token: 8fa2...  (set --token or TWIN_UDM_TOKEN to choose one)
 
@@ -58,6 +59,8 @@ def serve(db_path: Path | None, host: str, port: int, token: str | None, seed_di
     \b
     $ curl -X POST -H "Authorization: Bearer $TOKEN" -H 'Content-Type: application/geo+json' \\
         -d @roadworks.geojson http://127.0.0.1:8765/objects
+
+    The log level of the server is the group's: `twin -v udm serve` logs info, -vv debug, -q errors only.
     """
     # Imported here so that `twin --help` does not pay for uvicorn, starlette and osmium.
     from twin.udm.loadgen import is_loopback_host
@@ -79,6 +82,12 @@ def serve(db_path: Path | None, host: str, port: int, token: str | None, seed_di
     seeded = seed_from_build(store, seed_dir) if seed_dir is not None else None
 
     def announce(url: str) -> None:
+        if as_json:
+            facts = {"url": url, "store": str(db_path or "memory"), "objects": store.count(), "seeded": seeded,
+                     "token": token if generated else None}
+            click.echo(json.dumps(facts))
+            click.get_text_stream("stdout").flush()
+            return
         summary = f"UDM {url}  store={db_path or 'memory'}  objects={store.count()}"
         if seeded is not None:
             summary += "  (seeded: " + ", ".join(f"{name} {count}" for name, count in seeded.items()) + ")"
@@ -90,7 +99,8 @@ def serve(db_path: Path | None, host: str, port: int, token: str | None, seed_di
 
     try:
         run_server(create_app(store, token, purge_interval_s=purge_interval), host, port,
-                   on_listening=announce, log_level=log_level)
+                   on_listening=announce,
+                   log_level=logging.getLevelName(log_level(verbosity())).lower())
     except OSError as error:
         raise InputError(f"cannot listen on {host}:{port}: {error.strerror or error}") from None
     finally:
@@ -114,16 +124,20 @@ def serve(db_path: Path | None, host: str, port: int, token: str | None, seed_di
               help="Side in metres of the square each vehicle asks for.")
 @click.option("--timeout", default=1.0, show_default=True, type=click.FloatRange(0.01, 60.0),
               help="Seconds before a request counts as a timeout.")
-@click.option("--seed", default=0, show_default=True, help="Random seed for the vehicles' routes.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed for the vehicles' routes.")
 @click.option("--allow-remote", is_flag=True,
               help="Permit a URL that is not loopback. Only load a server you run yourself.")
+@json_option
 def bench_load(url: str, vehicles: int, rate: float, duration: float, lat: float, lon: float,
-               area_radius: float, side: float, timeout: float, seed: int, allow_remote: bool) -> None:
-    """Load a UDM with a simulated fleet and print latency percentiles as JSON.
+               area_radius: float, side: float, timeout: float, seed: int, allow_remote: bool,
+               as_json: bool) -> None:
+    """Load a UDM with a simulated fleet and print latency percentiles.
 
     \b
     $ twin udm bench-load --url http://127.0.0.1:8765 --vehicles 50 --rate 10 --duration 60
-    {"requests": 29950, "ok": 29950, "errors": 0, "latency_ms": {"p50": 2.1, "p95": 6.4, ...}, ...}
+    29950 requests (499.2 Hz), 29950 ok, 0 errors, 0 skipped ticks; 12.3 objects per answer
+    latency  p50 2.1 ms, p95 6.4 ms, max 31.0 ms, mean 2.6 ms
+    $ twin udm bench-load --duration 10 --json | jq .latency_ms.p95
 
     Requests are bounded by vehicles x rate x duration; a vehicle whose previous answer is late skips
     ticks (counted as skipped_ticks) rather than queueing more requests. For repeatable numbers with a
@@ -139,7 +153,15 @@ def bench_load(url: str, vehicles: int, rate: float, duration: float, lat: float
                              "that server")
     plan = LoadPlan(url=url, vehicles=vehicles, rate_hz=rate, duration_s=duration, lat=lat, lon=lon,
                     area_radius_m=area_radius, side_m=side, timeout_s=timeout, seed=seed)
-    click.echo(json.dumps(run_load(plan), indent=2))
+    result = run_load(plan)
+    if as_json:
+        click.echo(json.dumps(result, indent=2))
+        return
+    errors = ", ".join(f"{kind} {count}" for kind, count in result["errors_by_kind"].items() if count)
+    click.echo(f"{result['requests']} requests ({result['achieved_rate_hz']} Hz), {result['ok']} ok, "
+               f"{result['errors']} errors{f' ({errors})' if errors else ''}, {result['skipped_ticks']} skipped "
+               f"ticks; {result['objects_per_response']} objects per answer")
+    click.echo(f"latency  {_milliseconds(result['latency_ms'], 'p50', 'p95', 'max', 'mean')}")
 
 
 @udm.command("bench")
@@ -152,7 +174,7 @@ def bench_load(url: str, vehicles: int, rate: float, duration: float, lat: float
               help="The twin asks every N steps (twin drive --udm-every).")
 @click.option("--side", default=200.0, show_default=True, type=click.FloatRange(1.0, 10_000.0),
               help="Side in metres of the square asked for (twin drive --udm-bbox).")
-@click.option("--seed", default=0, show_default=True, help="Seed of the drive's random route.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the drive's random route.")
 @click.option("--timeout", default=1.0, show_default=True, type=click.FloatRange(0.01, 60.0),
               help="Seconds before a request counts as a timeout.")
 @click.option("--client", type=click.Choice(["process", "thread"]), default="process", show_default=True,
@@ -163,15 +185,19 @@ def bench_load(url: str, vehicles: int, rate: float, duration: float, lat: float
                    "car in the loop). Default: as fast as it can.")
 @click.option("--allow-remote", is_flag=True,
               help="Permit a URL that is not loopback. Only benchmark a server you may load.")
+@json_option
 def bench(map_dir: Path, url: str, requests: int, every: int, side: float, seed: int, timeout: float,
-          client: str, pace: float | None, allow_remote: bool) -> None:
-    """Compare UDM latency from inside a running twin with the same requests sent standalone (JSON).
+          client: str, pace: float | None, allow_remote: bool, as_json: bool) -> None:
+    """Compare UDM latency from inside a running twin with the same requests sent standalone.
 
     \b
-    $ twin udm serve --seed build/tavf-dlr &
     $ twin udm bench --map build/tavf-dlr --url http://127.0.0.1:8765 --requests 200
-    {"standalone_ms": {"min": 2.1, "mean": 3.4, "p95": 5.0, ...}, "in_twin_ms": {...},
-     "overhead_ratio": 1.02, "target_ratio": 1.05, ...}
+    standalone  mean 3.4 ms, p95 5.0 ms
+    in twin     mean 3.5 ms, p95 5.1 ms
+    overhead    1.02x mean, 1.02x p95 (target <= 1.05x): met
+    $ twin udm bench --map build/tavf-dlr --json | jq .overhead_ratio
+
+    It needs a UDM running, e.g. `twin udm serve --map build/tavf-dlr &`.
 
     The twin drives a random route with the UDM hook; its queries (centres, side, intervals) are then sent
     again from this process by a plain client. Both are timed with time.monotonic() from publish to the
@@ -186,4 +212,21 @@ def bench(map_dir: Path, url: str, requests: int, every: int, side: float, seed:
         raise InputError(f"--url {url!r} is not a loopback address; pass --allow-remote if you may load it")
     result = run_bench(map_dir, url, requests, every=every, side_m=side, seed=seed, timeout_s=timeout,
                        client=client, pace=pace)
-    click.echo(json.dumps(result, indent=2))
+    if as_json:
+        click.echo(json.dumps(result, indent=2))
+        return
+    twin, errors = result["twin"], result["errors"]
+    click.echo(f"standalone  {_milliseconds(result['standalone_ms'], 'mean', 'p95')}")
+    click.echo(f"in twin     {_milliseconds(result['in_twin_ms'], 'mean', 'p95')}")
+    verdict = "met" if result["meets_target"] else "NOT met"
+    click.echo(f"overhead    {result['overhead_ratio']}x mean, {result['overhead_ratio_p95']}x p95 "
+               f"(target <= {result['target_ratio']}x): {verdict}")
+    click.echo(f"twin        {twin['real_time_factor']}x real time, {twin['queries']} queries, {twin['answers']} "
+               f"answers; errors {errors['in_twin']} in twin, {errors['standalone']} standalone")
+
+
+def _milliseconds(stats: dict | None, *keys: str) -> str:
+    """``p50 2.1 ms, p95 6.4 ms`` of a latency summary (none when nothing was answered)."""
+    if not stats or all(stats.get(key) is None for key in keys):
+        return "no answers"
+    return ", ".join(f"{key} {stats[key]} ms" for key in keys)

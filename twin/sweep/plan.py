@@ -40,7 +40,7 @@ class DriveOptions:
 
     def arguments(self, seed: int) -> list[str]:
         args = ["--random", "--duration", repr(float(self.duration)), "--seed", str(int(seed)),
-                "--dt", repr(float(self.dt)), "--no-plot", "--no-record", "--format", "json"]
+                "--dt", repr(float(self.dt)), "--no-plot", "--no-record", "--json"]
         if self.traffic:
             args += ["--traffic", str(int(self.traffic))]
         if self.udm:

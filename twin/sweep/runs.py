@@ -37,7 +37,7 @@ def drive_once(build: str | Path, seed: int, options: DriveOptions, deadline: fl
     command = [sys.executable, "-m", "twin.cli.main", "drive", "--map", str(build)]
     with tempfile.TemporaryDirectory(prefix=f"tavf-sweep-{seed}-") as scratch:
         out = Path(scratch) / "run"
-        command += ["--out", str(out), *options.arguments(seed)]
+        command += ["-o", str(out), *options.arguments(seed)]
         started = time.perf_counter()
         process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                                    stdin=subprocess.DEVNULL, start_new_session=True)

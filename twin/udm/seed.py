@@ -48,7 +48,7 @@ def seed_from_build(store: Store, build_dir: str | Path,
     """Load every seed source of ``build_dir`` into ``store``; returns how many objects each source gave."""
     build_dir = Path(build_dir)
     if not build_dir.is_dir():
-        raise InputError("the --seed build folder does not exist", file=str(build_dir))
+        raise InputError("the --map build folder does not exist", file=str(build_dir))
     counts = {}
     for source in SEED_SOURCES if sources is None else sources:
         counts[source.name] = 0
