@@ -200,7 +200,7 @@ def run_drive(build: Path, seed: int, args, scratch: Path, tag: str) -> Drive:
     out = scratch / f"run-{seed}{tag}"
     shutil.rmtree(out, ignore_errors=True)
     command = [str(BIN / "twin"), "drive", "--map", str(build), "--random", "--duration", str(args.duration),
-               "--seed", str(seed), "--out", str(out)]
+               "--seed", str(seed), "-o", str(out)]
     result = run_limited(command, args.drive_timeout, args.memory_mib)
     drive = Drive(seed=seed, status=status_of(result), wall=round(result.wall, 2))
     if result.code != 0:
@@ -237,7 +237,7 @@ def run_map(name: str, source: Path, args, scratch: Path) -> Row:
     info = run_limited([str(BIN / "mapkit"), "info", str(xodr), "--json"], 600, args.memory_mib)
     if info.code == 0:
         row.roads = int(json.loads(info.stdout).get("counts", {}).get("roads", 0))
-    checked = run_limited([str(BIN / "mapkit"), "validate", str(xodr), "--format", "json", "--no-info"],
+    checked = run_limited([str(BIN / "mapkit"), "validate", str(xodr), "--json", "--no-info"],
                           args.build_timeout, args.memory_mib)
     if checked.code in (0, 1) and checked.stdout.strip():
         report = json.loads(checked.stdout)

@@ -91,8 +91,8 @@ def test_bbox_restricts_and_far_box_is_an_error(sample_build_dir, tmp_path):
     west, south, east, north = odr.bounds()
     lon, lat = odr.georeference.local_to_wgs84(np.array([west, 0.5 * (west + east)]), np.array([south, north]))
     runner = CliRunner()
-    whole = json.loads(runner.invoke(cli, ["compare", str(xodr), str(xodr), "--format", "json"]).output)
-    part = runner.invoke(cli, ["compare", str(xodr), str(xodr), "--format", "json",
+    whole = json.loads(runner.invoke(cli, ["compare", str(xodr), str(xodr), "--json"]).output)
+    part = runner.invoke(cli, ["compare", str(xodr), str(xodr), "--json",
                                "--bbox", f"{lon[0]},{lat[0]},{lon[1]},{lat[1]}", "--plot", str(tmp_path / "c.png")])
     assert part.exit_code == 0, part.output
     part = json.loads(part.output)

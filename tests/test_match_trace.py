@@ -95,7 +95,7 @@ def test_cli_json_contract_fixes_csv_and_errors(sample_build_dir, tmp_path):
     xodr = sample_build_dir / "sample.xodr"
     trace = _trace_on_lanes(sample_build_dir, tmp_path / "trace.csv")
     runner = CliRunner()
-    result = runner.invoke(cli, ["match-trace", str(xodr), str(trace), "--format", "json", "--fixes",
+    result = runner.invoke(cli, ["match-trace", str(xodr), str(trace), "--json", "--fixes",
                                  str(tmp_path / "fixes.csv"), "--plot", str(tmp_path / "m.png")])
     assert result.exit_code == 0, result.output
     stats = json.loads(result.output)

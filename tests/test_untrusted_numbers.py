@@ -105,7 +105,7 @@ def test_absurd_numbers_give_one_line_in_every_reading_command(tmp_path, name, c
 @pytest.mark.parametrize("name", ["length-5e12", "x-1e12", "sentinel", "width-1e12"])
 def test_validate_reports_absurd_numbers_as_findings(tmp_path, name):
     path, expected = _hostile(tmp_path, name)
-    result = CliRunner().invoke(cli, ["validate", str(path), "--format", "json"])
+    result = CliRunner().invoke(cli, ["validate", str(path), "--json"])
     assert result.exit_code == 1 and "Traceback" not in result.output
     findings = json.loads(result.output)["findings"]
     plausible = [f for f in findings if f["rule"] == "geometry.plausible"]
@@ -132,7 +132,7 @@ def test_5e9_m_road_is_refused_in_one_line_within_2_gb(tmp_path, command):
                                                          "artifacts": {"xodr": {"path": "hostile.xodr"}}}))
         expected = expected.replace(str(path), str(build / "hostile.xodr"))
         code, out, err, peak = run_limited("twin.cli.main", "drive", "--map", str(build), "--random",
-                                           "--duration", "10", "--out", str(tmp_path / "run"))
+                                           "--duration", "10", "-o", str(tmp_path / "run"))
     else:
         args = {"info": ["info"],
                 "export": ["export", "--layer", "lane-center", "--crs", "local", "-o", str(tmp_path / "c.csv")],

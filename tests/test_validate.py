@@ -53,12 +53,12 @@ def test_cli_text_json_and_exit_codes(tmp_path):
     assert "0 errors, 0 warnings, 2 notes" in result.output
     broken = write_network(tmp_path, "broken.xodr",
                            road2_successor='<successor elementType="road" elementId="99" contactPoint="start"/>')
-    result = runner.invoke(cli, ["validate", str(broken), "--format", "json"])
+    result = runner.invoke(cli, ["validate", str(broken), "--json"])
     assert result.exit_code == 1
     data = json.loads(result.output)
     assert [f["road"] for f in data["findings"] if f["rule"] == "topology.missing-road"] == ["2"]
     out = tmp_path / "report.json"
-    result = runner.invoke(cli, ["validate", str(broken), "--format", "json", "-o", str(out)])
+    result = runner.invoke(cli, ["validate", str(broken), "--json", "-o", str(out)])
     assert result.exit_code == 1 and json.loads(out.read_text())["summary"]["errors"] >= 1
 
 
@@ -77,7 +77,7 @@ def test_cli_strict_and_rule_selection(tmp_path):
     runner = CliRunner()
     path = write_network(tmp_path, header_extra="")  # no geoReference: one warning
     assert runner.invoke(cli, ["validate", str(path)]).exit_code == 0
-    result = runner.invoke(cli, ["validate", str(path), "--strict", "--format", "json"])
+    result = runner.invoke(cli, ["validate", str(path), "--strict", "--json"])
     assert result.exit_code == 1
     assert [f["severity"] for f in json.loads(result.output)["findings"] if f["rule"] == "georeference.missing"] \
         == ["error"]

@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from tavf_mapkit.cli.lazy import LazyGroup
+from tavf_mapkit.cli.options import FORMAT_TO_JSON, json_option
 
 
 @click.group(cls=LazyGroup)
@@ -20,16 +21,21 @@ def baseline() -> None:
     """
 
 
-@baseline.command()
+@baseline.command(renamed={"--format": FORMAT_TO_JSON})
 @click.option("--file", "path", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Baseline file (default: tavf_mapkit/data/baselines/accuracy.json of this package).")
-@click.option("--format", "fmt", type=click.Choice(["text", "json"]), default="text", show_default=True)
-def show(path: Path | None, fmt: str) -> None:
-    """Print every measurement with its baseline values, tolerances and direction."""
+@json_option
+def show(path: Path | None, as_json: bool) -> None:
+    """Print every measurement with its baseline values, tolerances and direction.
+
+    \b
+    $ mapkit baseline show
+    $ mapkit baseline show --json | jq '.measurements | keys'
+    """
     from tavf_mapkit.accuracy.baseline import BASELINE_FILE, load_baselines
 
     document = load_baselines(path or BASELINE_FILE)
-    if fmt == "json":
+    if as_json:
         click.echo(json.dumps(document, indent=2))
         return
     click.echo(f"mapkit {document.get('mapkit')}: {document.get('note') or ''}".rstrip(": "))
@@ -50,6 +56,10 @@ def show(path: Path | None, fmt: str) -> None:
               help="Baseline file to write (default: tavf_mapkit/data/baselines/accuracy.json).")
 def refresh(shared: Path | None, work: Path | None, only: tuple[str, ...], note: str, path: Path | None) -> None:
     """Rebuild the real inputs with `mapkit build` (default stages), measure, and rewrite the baselines.
+
+    \b
+    $ mapkit baseline refresh --note "netconvert 1.28: junction shapes changed"
+    $ mapkit baseline refresh --only compare/tavf-dlr/dlr-net --work /tmp/baseline --note "new lane widths"
 
     Tolerances and directions already in the file are kept; values are replaced. Commit the file with a
     message that says why it changed.

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import click
 
-from tavf_mapkit.cli.options import area_from, bbox_option, json_option, polygon_option
+from tavf_mapkit.cli.options import area_from, bbox_option, json_option, polygon_option, verbosity
 from tavf_mapkit.cluster import check_cluster_options, wants_cluster
 from tavf_mapkit.progress import progress_line
 
@@ -41,7 +41,8 @@ from tavf_mapkit.progress import progress_line
               help="Run the tile stages on the workers of a running Dask scheduler (no shared filesystem needed; "
                    "docs/distributed.md).")
 @click.option("-q", "--quiet", is_flag=True,
-              help="No progress lines (on a terminal, long stages otherwise show units done and time left).")
+              help="No progress lines (on a terminal, long stages otherwise show units done and time left); "
+                   "`mapkit -q build` too.")
 @json_option
 def build(input_path: Path, pipeline_file: Path | None, bbox, polygon: Path | None, profile: str | None,
           crs: str | None, driving_side: str | None, output: Path | None, no_repair: bool, force: bool,
@@ -74,6 +75,7 @@ def build(input_path: Path, pipeline_file: Path | None, bbox, polygon: Path | No
     from tavf_mapkit.pipeline.runner import run_build
     from tavf_mapkit.pipeline.summary import render_summary
 
+    quiet = quiet or verbosity() < 0
     area = area_from(bbox, polygon)
     side = driving_side.lower() if driving_side else None
     repair = False if no_repair else None  # None: the pipeline's [opendrive] repair (default true)

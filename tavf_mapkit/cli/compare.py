@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from tavf_mapkit.cli.options import BBoxType
+from tavf_mapkit.cli.options import FORMAT_TO_JSON, BBoxType, Command
 
 
 def format_comparison(report: dict) -> str:
@@ -42,27 +42,27 @@ def format_comparison(report: dict) -> str:
     return "\n".join(lines)
 
 
-@click.command()
-@click.argument("build", type=click.Path(dir_okay=False, path_type=str))
+@click.command(cls=Command, renamed={"--format": FORMAT_TO_JSON, "--area": "--polygon"})
+@click.argument("build", metavar="BUILD.xodr", type=click.Path(dir_okay=False, path_type=str))
 @click.argument("reference", type=click.Path(dir_okay=False, path_type=str))
 @click.option("--bbox", type=BBoxType(), default=None, help="Only compare inside west,south,east,north (degrees).")
-@click.option("--area", type=click.Path(dir_okay=False, path_type=Path), default=None, metavar="AREA.geojson",
+@click.option("--polygon", type=click.Path(dir_okay=False, path_type=Path), default=None, metavar="AREA.geojson",
               help="Only compare inside the polygons of a GeoJSON file (lon/lat).")
-@click.option("--format", "fmt", type=click.Choice(["text", "json"]), default="text", show_default=True,
-              help="text for people, json for machines (contract in docs/accuracy.md).")
+@click.option("--json", "as_json", is_flag=True,
+              help="Print JSON for machines instead of text (contract in docs/accuracy.md).")
 @click.option("--plot", type=click.Path(dir_okay=False, path_type=Path), default=None, metavar="OUT.png",
               help="Also draw the build's lanes coloured by their distance to the reference.")
 @click.option("--step", type=click.FloatRange(min=0.05), default=1.0, show_default=True,
               help="Sampling step along the lane centre lines (m).")
 @click.option("-o", "--output", default="-", show_default=True, help="Write the report here instead of stdout.")
-def compare(build: str, reference: str, bbox, area: Path | None, fmt: str, plot: Path | None, step: float,
+def compare(build: str, reference: str, bbox, polygon: Path | None, as_json: bool, plot: Path | None, step: float,
             output: str) -> None:
     """Compare BUILD.xodr with a REFERENCE network (.xodr, .net.xml or .net.xml.gz) where both have roads.
 
     \b
     $ mapkit compare build/tavf/tavf.xodr ../shared/data/hamburg/tavf_dlr_sumo_net/network.net.xml.gz
     $ mapkit compare build/a/a.xodr lgv.xodr --bbox 9.95,53.543,10.01,53.57 --plot compare.png
-    $ mapkit compare build/a/a.xodr ref.xodr --format json | jq .fitted_transform
+    $ mapkit compare build/a/a.xodr ref.xodr --json | jq .fitted_transform
 
     Both networks go through their own georeference into one metric CRS. Reported: Hausdorff
     distance of lane and road centre lines, offset (mean, median, p95) of paired lane centre lines,
@@ -74,14 +74,14 @@ def compare(build: str, reference: str, bbox, area: Path | None, fmt: str, plot:
     from tavf_mapkit.accuracy.compare import compare_networks
     from tavf_mapkit.cli.options import area_from
 
-    region = area_from(bbox, area)
+    region = area_from(bbox, polygon)
     comparison = compare_networks(build, reference, area=region, step=step)
     if plot is not None:
         from tavf_mapkit.accuracy.plot import plot_comparison
 
         plot_comparison(comparison, plot)
     report = comparison.to_dict()
-    text = json.dumps(report, indent=2) + "\n" if fmt == "json" else format_comparison(report) + "\n"
+    text = json.dumps(report, indent=2) + "\n" if as_json else format_comparison(report) + "\n"
     if output == "-":
         click.echo(text, nl=False)
     else:

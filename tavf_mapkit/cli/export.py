@@ -53,10 +53,13 @@ _LAYER_ONLY = ("crs", "fmt", "precision")
 @click.option("--precision", type=click.IntRange(0, 12), default=None,
               help="Decimals of coordinates (default: 6 for metres, 9 for degrees).")
 @output_option
+@click.option("--json", "as_json", is_flag=True,
+              help="With --to: print what the map file holds (counts, origin, warnings) as JSON on standard "
+                   "output (the map then needs -o FILE).")
 @click.pass_context
 def export(ctx: click.Context, xodr: str, layer: str | None, target: str | None, step: float, eps: float,
            origin: tuple[float, float] | None, crs: str | None, fmt: str, precision: int | None,
-           output: str) -> None:
+           output: str, as_json: bool) -> None:
     """Export a layer of an OpenDRIVE map, or the whole map as Lanelet2.
 
     \b
@@ -64,6 +67,7 @@ def export(ctx: click.Context, xodr: str, layer: str | None, target: str | None,
     $ mapkit export map.xodr --layer lane --format geojson -o lanes.geojson   # opens in QGIS
     $ mapkit export map.xodr --layer lane-center --crs EPSG:25832 --format csv -
     $ mapkit export build/NAME/NAME.xodr --to lanelet2 -o map.osm
+    $ mapkit export map.xodr --to lanelet2 -o map.osm --json | jq .origin
 
     Layers (after GDAL's XODR driver): reference-line, lane-border, lane-center, lane (polygons),
     road-mark, object, signal. CSV columns are a contract other tools rely on:
@@ -89,12 +93,15 @@ def export(ctx: click.Context, xodr: str, layer: str | None, target: str | None,
         if given:
             option = {"fmt": "--format"}.get(given[0], f"--{given[0]}")
             raise click.UsageError(f"{option} is for --layer; --to {target} writes its own format")
+        if as_json and output == "-":
+            raise click.UsageError("--json prints the summary on standard output: write the map with -o FILE")
         fixed_step = step if ctx.get_parameter_source("step") is not click.core.ParameterSource.DEFAULT else None
-        _export_lanelet2(load_opendrive(xodr), xodr, output, eps, fixed_step, origin)
+        _export_lanelet2(load_opendrive(xodr), xodr, output, eps, fixed_step, origin, as_json)
         return
-    for name in ("eps", "origin"):
+    for name in ("eps", "origin", "as_json"):
         if ctx.get_parameter_source(name) is not click.core.ParameterSource.DEFAULT:
-            raise click.UsageError(f"--{name} is for --to lanelet2")
+            option = {"as_json": "--json"}.get(name, f"--{name}")
+            raise click.UsageError(f"{option} is for --to lanelet2")
 
     odr = load_opendrive(xodr)
     crs = (crs or ("local" if fmt == "csv" else "wgs84")).strip()
@@ -116,10 +123,13 @@ def export(ctx: click.Context, xodr: str, layer: str | None, target: str | None,
 
 
 def _export_lanelet2(odr, xodr: str, output: str, eps: float, step: float | None,
-                     origin: tuple[float, float] | None) -> None:
+                     origin: tuple[float, float] | None, as_json: bool) -> None:
     from tavf_mapkit.lanelet2_export import export_lanelet2
 
     summary = export_lanelet2(odr, output, eps=eps, step=step, origin=origin, name=xodr)
+    if as_json:
+        click.echo(json.dumps({"output": output, **summary}, indent=2))
+        return
     lat, lon = summary["origin"]
     sampling = f"every {step:g} m" if step is not None else f"within {eps:g} m"
     click.echo(f"lanelet2: {summary['lanelets']} lanelets, {summary['ways']} ways, {summary['nodes']} nodes, "

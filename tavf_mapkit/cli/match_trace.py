@@ -7,6 +7,8 @@ from pathlib import Path
 
 import click
 
+from tavf_mapkit.cli.options import FORMAT_TO_JSON, Command
+
 
 def format_match(stats: dict) -> str:
     if not stats["matched"]:
@@ -24,11 +26,11 @@ def format_match(stats: dict) -> str:
     ])
 
 
-@click.command("match-trace")
+@click.command("match-trace", cls=Command, renamed={"--format": FORMAT_TO_JSON})
 @click.argument("map_path", metavar="MAP.xodr", type=click.Path(dir_okay=False, path_type=str))
 @click.argument("trace", type=click.Path(path_type=Path))
-@click.option("--format", "fmt", type=click.Choice(["text", "json"]), default="text", show_default=True,
-              help="text for people, json for machines (contract in docs/accuracy.md).")
+@click.option("--json", "as_json", is_flag=True,
+              help="Print JSON for machines instead of text (contract in docs/accuracy.md).")
 @click.option("--lane-types", default="driving", show_default=True,
               help="Comma-separated OpenDRIVE lane types to match to (e.g. driving,biking).")
 @click.option("--sigma", type=click.FloatRange(min=0.1), default=None,
@@ -40,13 +42,13 @@ def format_match(stats: dict) -> str:
 @click.option("--plot", type=click.Path(dir_okay=False, path_type=Path), default=None, metavar="OUT.png",
               help="Also draw the fixes coloured by their distance to the matched lane.")
 @click.option("-o", "--output", default="-", show_default=True, help="Write the report here instead of stdout.")
-def match_trace(map_path: str, trace: Path, fmt: str, lane_types: str, sigma: float | None, radius: float | None,
+def match_trace(map_path: str, trace: Path, as_json: bool, lane_types: str, sigma: float | None, radius: float | None,
                 fixes: Path | None, plot: Path | None, output: str) -> None:
     """Map-match TRACE to the lanes of MAP.xodr and report how far the fixes are from them.
 
     \b
     $ mapkit match-trace build/tavf-dlr/tavf-dlr.xodr ../shared/data/hamburg/gnss_ride_b4/thomas.json
-    $ mapkit match-trace map.xodr ride.gpx --format json | jq .median_m
+    $ mapkit match-trace map.xodr ride.gpx --json | jq .median_m
     $ mapkit match-trace map.xodr drive.bag --fixes fixes.csv --plot match.png
 
     TRACE: GPX, GeoJSON (points or lines), CSV (lat,lon[,time], header detected), the JSON ride
@@ -73,7 +75,7 @@ def match_trace(map_path: str, trace: Path, fmt: str, lane_types: str, sigma: fl
 
         plot_match(result, graph, plot, title=f"{trace.name} on {Path(map_path).name}: fixes by distance to the "
                                              "matched lane (m); unmatched: x")
-    text = json.dumps(stats, indent=2) + "\n" if fmt == "json" else format_match(stats) + "\n"
+    text = json.dumps(stats, indent=2) + "\n" if as_json else format_match(stats) + "\n"
     if output == "-":
         click.echo(text, nl=False)
     else:

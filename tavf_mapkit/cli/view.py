@@ -36,7 +36,7 @@ def view(build: str, runs: tuple[str, ...], port: int, no_browser: bool, basemap
     every validation finding as a marker naming rule, road, lane and s, the roads the build repaired, and
     the GNSS trace with its matched path when the build's check stage had one. The 3D view shows the mesh
     tiles and the collision world (orbit, or fly with W/A/S/D/R/F and drag to look). Each RUN folder
-    (`twin drive --out RUN`) is replayed on both with a time slider: ego, SUMO vehicles and pedestrians,
+    (`twin drive -o RUN`) is replayed on both with a time slider: ego, SUMO vehicles and pedestrians,
     UDM objects. The page is served on 127.0.0.1 only and needs no internet (--basemap adds online tiles).
     Stop it with Ctrl-C. See docs/view.md.
     """

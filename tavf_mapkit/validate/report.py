@@ -61,7 +61,7 @@ class ValidationReport:
         for finding in shown[:limit] if limit else shown:
             lines.append(f"  {finding}")
         if limit and len(shown) > limit:
-            lines.append(f"  ... and {len(shown) - limit} more (--limit 0 or --format json for all)")
+            lines.append(f"  ... and {len(shown) - limit} more (--limit 0 or --json for all)")
         summary = self.summary
         counts = ", ".join(f"{rule} {n}" for rule, n in summary["by_rule"].items())
         lines.append(f"{summary['errors']} errors, {summary['warnings']} warnings, {summary['info']} notes "
