@@ -4,7 +4,7 @@ twin alone (issue 16: within 1.2x).
     $ .venv/bin/python benchmarks/bench_udm_fleet.py                     # the zoo's Perth roundabout, 60 s
     $ .venv/bin/python benchmarks/bench_udm_fleet.py --twins 20 --duration 120 --build build/tavf-dlr
 
-Starts ``twin udm serve --seed BUILD`` on a free loopback port (its own process), then
+Starts ``twin udm serve --map BUILD`` on a free loopback port (its own process), then
 ``twin sweep --udm URL`` (every run at real time, --pace 1): first one seed alone, then ``--twins`` seeds on a
 LocalCluster of as many workers, so all twins drive at once against the same server. The latency is the twin's
 request latency (fix sent -> answer parsed) of every successful query, pooled over the runs from their
