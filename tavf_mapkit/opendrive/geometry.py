@@ -203,6 +203,8 @@ def _spiral(params, length, ds, geometry=None):
 
 
 _TABLE_PANELS = 16
+_CURVES_PER_BATCH = 4096
+_SAMPLES_PER_BATCH = 65536
 _LOCAL_NODES, _LOCAL_WEIGHTS = np.polynomial.legendre.leggauss(10)
 
 
@@ -211,9 +213,15 @@ def _arc_length_table(speed, p_end: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     up to each (16-node Gauss-Legendre per panel); ``table[:, -1]`` is the curve's length."""
     edges = np.linspace(0.0, 1.0, _TABLE_PANELS + 1)[None, :] * p_end[:, None]  # (curves, panels+1)
     half = 0.5 * (edges[:, 1:] - edges[:, :-1])
-    nodes = edges[:, :-1, None] + half[:, :, None] * (_GL_NODES[None, None, :] + 1.0)
-    curves = np.arange(len(p_end))
-    panel_lengths = (speed(curves[:, None, None], nodes) * _GL_WEIGHTS[None, None, :]).sum(axis=2) * half
+    panel_lengths = np.empty_like(half)
+    # in batches of curves: 256 nodes per curve and their temporaries would take GBs on a city's curves at once
+    # (each row's sum is the same whatever batch it is in)
+    for first in range(0, len(p_end), _CURVES_PER_BATCH):
+        batch = slice(first, first + _CURVES_PER_BATCH)
+        nodes = edges[batch, :-1, None] + half[batch, :, None] * (_GL_NODES[None, None, :] + 1.0)
+        curves = np.arange(first, first + len(nodes))
+        panel_lengths[batch] = (speed(curves[:, None, None], nodes) * _GL_WEIGHTS[None, None, :]).sum(axis=2) \
+            * half[batch]
     return edges, np.concatenate([np.zeros((len(p_end), 1)), np.cumsum(panel_lengths, axis=1)], axis=1)
 
 
@@ -226,17 +234,22 @@ def _arc_length_inverse(speed, p_end: np.ndarray, target: np.ndarray, row: np.nd
     ``row`` maps each sample to its curve (index into p_end).
     """
     edges, table = _arc_length_table(speed, p_end) if table is None else table
-    k = np.clip((table[row, 1:] <= target[:, None]).sum(axis=1), 0, _TABLE_PANELS - 1)
-    a0, a1 = table[row, k], table[row, k + 1]
-    p0, p1 = edges[row, k], edges[row, k + 1]
-    fraction = np.divide(target - a0, a1 - a0, out=np.zeros_like(target), where=a1 > a0)
-    p = p0 + fraction * (p1 - p0)
-    for _ in range(4):
-        h = 0.5 * (p - p0)
-        local_nodes = p0[:, None] + h[:, None] * (_LOCAL_NODES[None, :] + 1.0)
-        length = a0 + (speed(row[:, None], local_nodes) * _LOCAL_WEIGHTS).sum(axis=1) * h  # no BLAS: see _integrate
-        p = p - (length - target) / np.maximum(speed(row, p), 1e-12)
-    return p
+    result = np.empty(len(target))
+    for first in range(0, len(target), _SAMPLES_PER_BATCH):  # bounded temporaries, as in _arc_length_table
+        batch = slice(first, first + _SAMPLES_PER_BATCH)
+        r, goal = row[batch], target[batch]
+        k = np.clip((table[r, 1:] <= goal[:, None]).sum(axis=1), 0, _TABLE_PANELS - 1)
+        a0, a1 = table[r, k], table[r, k + 1]
+        p0, p1 = edges[r, k], edges[r, k + 1]
+        fraction = np.divide(goal - a0, a1 - a0, out=np.zeros_like(goal), where=a1 > a0)
+        p = p0 + fraction * (p1 - p0)
+        for _ in range(4):
+            h = 0.5 * (p - p0)
+            local_nodes = p0[:, None] + h[:, None] * (_LOCAL_NODES[None, :] + 1.0)
+            length = a0 + (speed(r[:, None], local_nodes) * _LOCAL_WEIGHTS).sum(axis=1) * h  # no BLAS: _integrate
+            p = p - (length - goal) / np.maximum(speed(r, p), 1e-12)
+        result[batch] = p
+    return result
 
 
 def _poly3(params, length, ds, geometry=None):
