@@ -5,7 +5,8 @@ not inherit, and multiprocessing's spawn would re-import the caller's __main__ s
 pickled messages: the parent sends tuples whose first item is their kind; the child answers with
 (kind, payload, stats), ``stats`` being its counters when it sent the message.
 
-Parent side, ``ChildProcess(module, what, settings)``: starts ``python -m MODULE FD``, hands it ``settings`` and
+Parent side, ``ChildProcess(module, what, settings[, pass_fds])``: starts ``python -m MODULE FD`` (inheriting
+``pass_fds`` too), hands it ``settings`` and
 waits until it is ready, or raises ``RuntimeError("WHAT did not start: why")`` (one line). ``ask`` sends a
 request and reads until its answer, ``close`` asks the child to finish and reads until it says "closed"; both
 have a deadline, and a child that does not end in time is killed: nothing here waits for ever.
@@ -18,6 +19,7 @@ An exception before ``ready()`` goes back to the parent as the reason the child 
 
 from __future__ import annotations
 
+import select
 import signal
 import socket
 import subprocess
@@ -37,12 +39,13 @@ class ChildProcess:
     """The parent's end of a helper process. ``lock`` guards the pipe and ``closed`` (callers guard their own
     state with it too); ``stats`` are the child's counters as of its last message."""
 
-    def __init__(self, module: str, what: str, settings: Any, start_timeout_s: float = START_TIMEOUT_S) -> None:
+    def __init__(self, module: str, what: str, settings: Any, start_timeout_s: float = START_TIMEOUT_S,
+                 pass_fds: tuple[int, ...] = ()) -> None:
         self.what = what
         self.lock = threading.Lock()
         self.closed = False
         self.stats: Any = None
-        self.process, self._conn = _spawn(module)
+        self.process, self._conn = _spawn(module, pass_fds)
         try:
             self._conn.send(settings)
             answered, reason = self.wait_for("ready", start_timeout_s, errors=("error",))
@@ -58,6 +61,14 @@ class ChildProcess:
     def send(self, *message: Any) -> None:
         """Hand a message to the child; OSError or ValueError when it is gone."""
         self._conn.send(message)
+
+    def has_room(self) -> bool:
+        """Whether a message of up to ~100 kB goes out without waiting: Linux reports a Unix socket writable
+        while at most a quarter of its send buffer (~200 kB) is in use. False when the child is gone."""
+        try:
+            return bool(select.select((), (self._conn,), (), 0)[1])
+        except (OSError, ValueError):
+            return False
 
     def wait_for(self, wanted: str, timeout_s: float, on_message: OnMessage | None = None,
                  errors: tuple[str, ...] = ()) -> tuple[bool, Any]:
@@ -189,12 +200,13 @@ def serve(start: Callable[[Any, Parent], None], what: str) -> None:
         conn.close()
 
 
-def _spawn(module: str) -> tuple[subprocess.Popen, Connection]:
-    """Start ``python -m MODULE FD``; return the process and the parent's end of the socket pair."""
+def _spawn(module: str, pass_fds: tuple[int, ...] = ()) -> tuple[subprocess.Popen, Connection]:
+    """Start ``python -m MODULE FD``; return the process and the parent's end of the socket pair. ``pass_fds``:
+    more descriptors the child inherits under the same numbers (e.g. a listening socket bound by the parent)."""
     parent_socket, child_socket = socket.socketpair()
     try:
         process = subprocess.Popen([sys.executable, "-m", module, str(child_socket.fileno())],
-                                   pass_fds=[child_socket.fileno()], stdin=subprocess.DEVNULL)
+                                   pass_fds=[child_socket.fileno(), *pass_fds], stdin=subprocess.DEVNULL)
     except BaseException:
         parent_socket.close()
         raise

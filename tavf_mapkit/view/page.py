@@ -11,10 +11,11 @@ import re
 from tavf_mapkit.view.server import STATIC
 
 
-def live_page(*, basemap: bool = False) -> str:
-    """static/index.html with the page's options filled in."""
+def live_page(*, basemap: bool = False, live: dict | None = None) -> str:
+    """static/index.html with the page's options filled in (``live``: the page follows a running drive)."""
     html = (STATIC / "index.html").read_text(encoding="utf-8")
-    return html.replace("/*OPTIONS*/{}/*END*/", json.dumps({"basemap": bool(basemap)}))
+    options = {"basemap": bool(basemap)} | ({"live": live} if live is not None else {})
+    return html.replace("/*OPTIONS*/{}/*END*/", json.dumps(options))
 
 
 def _script(text: str) -> str:

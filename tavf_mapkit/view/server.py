@@ -11,6 +11,7 @@ and the vendored JavaScript are served as static files. Routes:
     /api/runs/N        the replay of run N
     /build/mesh/...    the build's mesh/ folder;  /build/collision/...  its collision/ folder
     /static/...        the page's own files and the vendored Leaflet and three.js
+    /api/live          with ``live`` (``twin drive --view``, view/live.py): the running drive's latest state
 """
 
 from __future__ import annotations
@@ -76,8 +77,9 @@ def _dumps(data) -> bytes:
     return json.dumps(data, separators=(",", ":"), allow_nan=False).encode("utf-8")
 
 
-def create_app(view: ViewData):
-    """The starlette app serving one ViewData."""
+def create_app(view: ViewData, live=None):
+    """The starlette app serving one ViewData (or anything with its attributes, e.g. live.LazyViewData);
+    ``live``: a live.LiveState whose latest state ``/api/live`` serves, and the page then follows."""
     from starlette.applications import Starlette
     from starlette.responses import HTMLResponse, Response
     from starlette.routing import Mount, Route
@@ -89,12 +91,13 @@ def create_app(view: ViewData):
     async def page(request):
         from tavf_mapkit.view.page import live_page
 
-        return HTMLResponse(live_page(basemap=view.basemap))
+        return HTMLResponse(live_page(basemap=view.basemap, live=None if live is None else live.page_options()))
 
-    async def api_map(request):
+    # plain functions, run in starlette's thread pool: a lazily computed map must not stall the event loop
+    def api_map(request):
         return json_response(view.map_json)
 
-    async def api_scene(request):
+    def api_scene(request):
         return json_response(view.scene_json)
 
     async def api_runs(request):
@@ -109,6 +112,11 @@ def create_app(view: ViewData):
     routes = [Route("/", page), Route("/api/map", api_map), Route("/api/scene", api_scene),
               Route("/api/runs", api_runs), Route("/api/runs/{index:int}", api_run),
               Mount("/static", app=StaticFiles(directory=STATIC), name="static")]
+    if live is not None:
+        async def api_live(request):
+            return Response(live.body(), media_type="application/json", headers={"Cache-Control": "no-store"})
+
+        routes.append(Route("/api/live", api_live))
     if view.build_path is not None:
         for folder in ("mesh", "collision"):
             if (view.build_path / folder).is_dir():
@@ -131,11 +139,12 @@ def bind(port: int):
     return sock
 
 
-def serve(app, sock, on_ready=None) -> None:
-    """Serve until Ctrl-C or SIGTERM (uvicorn handles both and shuts down cleanly)."""
+def make_server(app, on_ready=None):
+    """A uvicorn.Server for ``app`` that calls ``on_ready()`` once it listens (set ``should_exit`` to stop it)."""
     import uvicorn
 
-    config = uvicorn.Config(app, log_level="warning", access_log=False, lifespan="off")
+    config = uvicorn.Config(app, log_level="warning", access_log=False, lifespan="off",
+                            timeout_graceful_shutdown=2)  # a page still fetching never holds the stop up for long
     server = uvicorn.Server(config)
     if on_ready is not None:
         startup = server.startup
@@ -145,4 +154,9 @@ def serve(app, sock, on_ready=None) -> None:
             on_ready()
 
         server.startup = started
-    server.run(sockets=[sock])
+    return server
+
+
+def serve(app, sock, on_ready=None) -> None:
+    """Serve until Ctrl-C or SIGTERM (uvicorn handles both and shuts down cleanly)."""
+    make_server(app, on_ready).run(sockets=[sock])

@@ -78,10 +78,18 @@ def _bias(value: str | None) -> tuple[float, float, float]:
               help="SUMO pedestrians.")
 @click.option("--demand", type=click.Path(dir_okay=False, path_type=Path), metavar="ROUTES.rou.xml",
               help="SUMO demand file instead of generated traffic.")
+@click.option("--view", is_flag=True,
+              help="Show the drive live in the browser (the 3D view and 2D map of `mapkit view`), on 127.0.0.1 "
+                   "while it runs; it never slows the loop down by waiting (docs/view.md, Live).")
+@click.option("--view-port", type=click.IntRange(0, 65535), default=8790, show_default=True, metavar="N",
+              help="Port of --view on 127.0.0.1 (0: any free port).")
+@click.option("--view-rate", type=click.FloatRange(min=0, min_open=True, max=60), default=10.0, show_default=True,
+              metavar="HZ", help="Updates of --view per wall-clock second.")
+@click.option("--no-browser", is_flag=True, help="With --view: print the address, do not open a browser.")
 @json_option
 def drive(map_dir, route, route_mode, random_route, duration, seed, speed_kmh, controller, dt, pace, vehicles, gnss_rate, gnss_noise,
           gnss_bias, lidar, camera, gui, out_dir, no_plot, udm, udm_every, udm_bbox, record, traffic, pedestrians,
-          demand, as_json) -> None:
+          demand, view, view_port, view_rate, no_browser, as_json) -> None:
     """Drive a simulated Tesla Model S through a build and write what happened.
 
     \b
@@ -89,6 +97,7 @@ def drive(map_dir, route, route_mode, random_route, duration, seed, speed_kmh, c
     $ twin drive --map build/tavf-dlr --route ride.json -o runs/ride
     $ twin drive --map build/tavf-dlr --random --duration 1800 --seed 7 --gnss-noise 0.5
     $ twin -v drive --map build/sample --random -o runs/a --json | jq .collisions
+    $ twin drive --map build/sample --random --duration 600 --traffic 40 --view   # watch it in the browser
 
     Writes DIR/trajectory.csv (t,x,y,z,yaw,speed,lat,lon,road,lane), DIR/gnss.csv, DIR/imu.csv,
     DIR/collisions.csv, DIR/metrics.json and DIR/drive.png. Same seed and inputs give byte-identical
@@ -109,6 +118,10 @@ def drive(map_dir, route, route_mode, random_route, duration, seed, speed_kmh, c
                          gnss_noise=gnss_noise, gnss_bias=_bias(gnss_bias), lidar=lidar, camera=camera, gui=gui,
                          plot=not no_plot, pace=pace, plugins=plugins)
     hooks = create_hooks(config.as_dict())
+    if view:  # not a drive option (a re-simulation opens no view): the last hook, seeing the others' step
+        from twin.view.hook import LiveViewHook
+
+        hooks.append(LiveViewHook(map_dir, port=view_port, rate_hz=view_rate, browser=not no_browser))
     metrics = Session(config, hooks).run()
     if as_json:
         click.echo(json.dumps(metrics, indent=2))

@@ -1,5 +1,6 @@
-// The live page of `mapkit view`: fetches the build's data from the local server and wires the 2D map, the
-// 3D view and the replay bar together. window.mapkit exposes them (for people at the console, and tests).
+// The live page of `mapkit view` (and of `twin drive --view`): fetches the build's data from the local server
+// and wires the 2D map, the 3D view and the replay bar (or the live bar) together. window.mapkit exposes them
+// (for people at the console, and tests).
 import { MapkitScene3D } from "./scene3d.js";
 
 async function fetchJSON(url) {
@@ -28,10 +29,15 @@ async function main() {
   const scene3d = new MapkitScene3D(document.getElementById("view3d"), sceneData);
   window.mapkit = { data: mapData, scene: sceneData, map2d, scene3d };
   layoutButtons(document.getElementById("views"));
-  const replay = window.MapkitReplay(document.getElementById("replay"), runs, (i) => fetchJSON("api/runs/" + i),
-                                     [map2d, scene3d]);
-  window.mapkit.replay = replay;
-  await Promise.all([scene3d.loaded, replay.ready]);
+  if (options.live) {  // `twin drive --view`: the bar follows the running drive instead of replaying a run
+    window.mapkit.live = window.MapkitLive(document.getElementById("replay"), [map2d, scene3d], options.live);
+    await scene3d.loaded;
+  } else {
+    const replay = window.MapkitReplay(document.getElementById("replay"), runs, (i) => fetchJSON("api/runs/" + i),
+                                       [map2d, scene3d]);
+    window.mapkit.replay = replay;
+    await Promise.all([scene3d.loaded, replay.ready]);
+  }
   document.body.dataset.ready = "true";
 }
 

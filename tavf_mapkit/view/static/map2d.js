@@ -144,10 +144,16 @@
       for (let i = 0; i < run.ego.t.length; i++) {
         if (run.ego.lat[i] !== null && run.ego.lon[i] !== null) track.push([run.ego.lat[i], run.ego.lon[i]]);
       }
-      L.polyline(track, { renderer: canvas, color: "#51cf66", weight: 2, opacity: 0.7, interactive: false }).addTo(replay.group);
+      replay.track = L.polyline(track, { renderer: canvas, color: "#51cf66", weight: 2, opacity: 0.7,
+                                         interactive: false }).addTo(replay.group);
       replay.ego = L.circleMarker(track[0], { renderer: svg, radius: 7, weight: 2, color: "#ffffff",
         fillColor: "#2b8a3e", fillOpacity: 1, className: "ego-marker" }).addTo(replay.group);
       replay.ego.bindTooltip("ego");
+    }
+    function refreshTrack() {  // the run's ego arrays grew (a live drive): redraw its track
+      const ego = replay.run.ego, track = [];
+      for (let i = 0; i < ego.t.length; i++) if (ego.lat[i] !== null && ego.lon[i] !== null) track.push([ego.lat[i], ego.lon[i]]);
+      replay.track.setLatLngs(track);
     }
     function showTime(index) {
       const run = replay.run;
@@ -176,7 +182,7 @@
         }
       }
     }
-    return { map, layers, showRun, showTime, replay };
+    return { map, layers, showRun, showTime, refreshTrack, replay };
   }
 
   function addLegend(map, data) {

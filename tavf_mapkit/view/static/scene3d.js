@@ -156,19 +156,29 @@ export class MapkitScene3D {
     this.replayGroup.clear();
     this.actors = new Map();
     if (!run) return;
-    const track = [];
-    for (let i = 0; i < run.ego.t.length; i++) {
-      if (run.ego.x[i] !== null) track.push(this.toScene(run.ego.x[i], run.ego.y[i], (run.ego.z[i] || 0) + 0.15));
-    }
-    const line = new THREE.Line(new THREE.BufferGeometry().setFromPoints(track),
+    this.track = new THREE.Line(new THREE.BufferGeometry().setFromPoints(this.trackPoints(run)),
                                 new THREE.LineBasicMaterial({ color: 0x2b8a3e }));
-    this.replayGroup.add(line);
+    this.replayGroup.add(this.track);
     this.ego = new THREE.Mesh(new THREE.BoxGeometry(EGO.length, EGO.height, EGO.width),
                               new THREE.MeshStandardMaterial({ color: 0x2f9e44 }));
     this.ego.name = "ego";
     this.replayGroup.add(this.ego);
     this.udm = new THREE.Group();
     this.replayGroup.add(this.udm);
+  }
+
+  trackPoints(run) {
+    const track = [];
+    for (let i = 0; i < run.ego.t.length; i++) {
+      if (run.ego.x[i] !== null) track.push(this.toScene(run.ego.x[i], run.ego.y[i], (run.ego.z[i] || 0) + 0.15));
+    }
+    return track;
+  }
+
+  refreshTrack() {  // the run's ego arrays grew (a live drive): a new line geometry
+    const old = this.track.geometry;
+    this.track.geometry = new THREE.BufferGeometry().setFromPoints(this.trackPoints(this.run));
+    old.dispose();
   }
 
   place(mesh, x, y, z, yaw, lift) {
