@@ -27,6 +27,9 @@ log = logging.getLogger(__name__)
 
 DEFAULT_PORT = 8790  # beside mapkit view's 8780, so both can run at once
 DEFAULT_RATE_HZ = 10.0
+# the child lingers up to 1 s for a watching page and stops its server within 2 s; a frozen one is killed after
+# twice this (no answer to "close", then no exit)
+CLOSE_TIMEOUT_S = 3.0
 
 
 class LiveViewHook(SessionHook):
@@ -98,7 +101,7 @@ class LiveViewHook(SessionHook):
         try:
             if self._last_frame is not None:
                 self._hand_over(self._last_frame)  # the page ends on the drive's last step
-            self.child.close()
+            self.child.close(CLOSE_TIMEOUT_S)
         finally:
             metrics["view"] = {"url": self.url, "rate_hz": self.rate_hz, "states_sent": self.sent,
                                "states_skipped": self.skipped}
