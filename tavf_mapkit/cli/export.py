@@ -12,7 +12,7 @@ import numpy as np
 
 from tavf_mapkit.cli.options import output_option, step_option, xodr_argument
 from tavf_mapkit.errors import InputError
-from tavf_mapkit.opendrive.layers import LAYERS
+from tavf_mapkit.opendrive.layers import LAYERS, json_properties
 
 
 class LatLonType(click.ParamType):
@@ -217,7 +217,7 @@ def _geojson(odr, layer, step, transform, digits, crs, stream) -> None:
             geometry = {"type": "Polygon", "coordinates": [coords]}
         else:
             geometry = {"type": "LineString", "coordinates": coords}
-        features.append({"type": "Feature", "geometry": geometry, "properties": _jsonable(feature.properties)})
+        features.append({"type": "Feature", "geometry": geometry, "properties": json_properties(feature.properties)})
     collection = {"type": "FeatureCollection", "features": features}
     if crs.lower() != "wgs84":
         collection["crs"] = {"type": "name", "properties": {"name": crs}}
@@ -225,12 +225,3 @@ def _geojson(odr, layer, step, transform, digits, crs, stream) -> None:
     stream.write("\n")
 
 
-def _jsonable(properties: dict) -> dict:
-    out = {}
-    for key, value in properties.items():
-        if isinstance(value, (np.floating, float)):
-            value = float(value) if np.isfinite(value) else None
-        elif isinstance(value, np.integer):
-            value = int(value)
-        out[key] = value
-    return out

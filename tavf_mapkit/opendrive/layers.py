@@ -121,3 +121,18 @@ def layer_features(odr, layer: str, step: float):
 
 
 __all__ = ["LAYERS", "Feature", "layer_features", "section_samples"]
+
+
+def json_properties(properties: dict) -> dict:
+    """A feature's properties as JSON takes them: numpy scalars as Python numbers, non-finite floats as None
+    (JSON has no NaN)."""
+    out = {}
+    for key, value in properties.items():
+        if isinstance(value, (np.floating, float)):
+            value = float(value) if np.isfinite(value) else None
+        elif isinstance(value, np.integer):
+            value = int(value)
+        elif isinstance(value, np.bool_):
+            value = bool(value)
+        out[key] = value
+    return out

@@ -79,6 +79,8 @@ class _Projector:
     def collection(self, features) -> dict:
         """opendrive.layers features -> a GeoJSON FeatureCollection: lines and rings thinned and every vertex
         projected in one vectorised pass (a city has thousands of lanes)."""
+        from tavf_mapkit.opendrive.layers import json_properties
+
         features = list(features)
         if not features:
             return {"type": "FeatureCollection", "features": []}
@@ -115,7 +117,7 @@ class _Projector:
                 geometry = {"type": "Polygon", "coordinates": [coordinates]}
             else:
                 geometry = {"type": "LineString", "coordinates": coordinates}
-            out.append({"type": "Feature", "geometry": geometry, "properties": jsonable(feature.properties)})
+            out.append({"type": "Feature", "geometry": geometry, "properties": json_properties(feature.properties)})
         return {"type": "FeatureCollection", "features": out}
 
     def shapes(self, shapes: dict) -> dict:
@@ -226,20 +228,6 @@ def _gnss_layers(odr, project: _Projector, trace, result) -> dict:
                 route.append({"type": "Feature", "properties": {"lane": str(index.keys[node])},
                               "geometry": {"type": "LineString", "coordinates": project.lonlat(points)}})
     return {"gnss": fixes, "matched": {"type": "FeatureCollection", "features": route}}
-
-
-def jsonable(properties: dict) -> dict:
-    """numpy scalars -> Python; non-finite floats -> None (JSON has no NaN)."""
-    out = {}
-    for key, value in properties.items():
-        if isinstance(value, (np.floating, float)):
-            value = float(value) if np.isfinite(value) else None
-        elif isinstance(value, np.integer):
-            value = int(value)
-        elif isinstance(value, np.bool_):
-            value = bool(value)
-        out[key] = value
-    return out
 
 
 def build_map_data(build, odr=None, *, step: float = STEP_M) -> dict:
