@@ -85,6 +85,41 @@ def tile_stages(build: Path, out: Path, fanout=None) -> dict:
             "total_s": done - started, "digest": folder_digest(out)}
 
 
+# the functions whose work a cluster runs as tasks, by the kind of task that does it: a batch of roads, the
+# junction curbs, one final tile's merge + files + paint, one collision tile's bodies
+PASSES = {("tavf_mapkit.mesh.tiled", "_mesh_batch"): "batch_task",
+          ("tavf_mapkit.mesh.tiled", "_junction_curbs"): "curb_task",
+          ("tavf_mapkit.mesh.tiled", "tile_product"): "tiles_task",
+          ("tavf_mapkit.world.build", "tile_files"): "collision_task"}
+
+
+def timed_passes(work) -> tuple:
+    """``work()`` in this process with the seconds spent in each function a cluster would run as tasks
+    (wrapped with timers for the run): (result, {task kind: seconds})."""
+    import importlib
+
+    seconds = defaultdict(float)
+    originals = {key: getattr(importlib.import_module(key[0]), key[1]) for key in PASSES}
+
+    def timed(key):
+        def run(*args, **kwargs):
+            started = time.perf_counter()
+            try:
+                return originals[key](*args, **kwargs)
+            finally:
+                seconds[PASSES[key]] += time.perf_counter() - started
+        return run
+
+    try:
+        for key in PASSES:
+            setattr(importlib.import_module(key[0]), key[1], timed(key))
+        result = work()
+    finally:
+        for key, function in originals.items():
+            setattr(importlib.import_module(key[0]), key[1], function)
+    return result, dict(seconds)
+
+
 def on_cluster(workers: int, work):
     """``work(fanout, client)`` on a fresh LocalCluster of ``workers`` processes; its start-up is not timed."""
     from tavf_mapkit.cluster import connect
@@ -128,11 +163,18 @@ def sweep(build: Path, runs: int, out: Path, workers: int | None) -> float:
     return time.perf_counter() - started
 
 
-def amdahl(serial: dict, kinds: dict, task_overhead: float, workers: list[int]) -> dict:
-    """The workers' loading of the map (``preload_task``, one per worker) runs while the client loads its own
-    copy, which the serial part already holds: it is not parallel work."""
+def amdahl(serial: dict, kinds: dict, in_process: dict, task_overhead: float, workers: list[int]) -> dict:
+    """The parallel part: each kind of task's work as it took in one process (``in_process``: seconds of the
+    passes, and of the collision stage), its longest task scaled by the same in-process / worker ratio. The
+    workers' loading of the map (``preload_task``) runs while the client loads its own copy, which the serial
+    part already holds."""
     preload = kinds.get("preload_task", {"work_s": 0.0, "tasks": 0})
-    kinds = {name: kind for name, kind in kinds.items() if name != "preload_task"}
+    kinds = {name: dict(kind, worker_s=kind["work_s"]) for name, kind in kinds.items() if name != "preload_task"}
+    for name, kind in kinds.items():
+        own = in_process.get(name)
+        if own is not None and kind["work_s"] > 0:
+            kind["longest_s"] *= own / kind["work_s"]
+            kind["work_s"] = own
     work = sum(kind["work_s"] for kind in kinds.values())
     tasks = sum(kind["tasks"] for kind in kinds.values())
     total = serial["wall_s"]
@@ -176,10 +218,11 @@ def main() -> int:
         print(f"\nmapkit build {args.map.name}, one process: {serial['wall_s']:.1f} s  "
               + "  ".join(f"{k} {v:.1f}" for k, v in serial["stages"].items()))
 
+        local, passes = timed_passes(lambda: tile_stages(build, scratch / "t0"))
+        figures["in_process_passes_s"] = passes
         one = on_cluster(1, lambda fanout, client: _streamed(get_task_stream, client,
                                                              lambda: tile_stages(build, scratch / "t1", fanout)))
         if not args.projection_only:
-            local = tile_stages(build, scratch / "t0")
             two = on_cluster(2, lambda fanout, client: tile_stages(build, scratch / "t2", fanout))
             same = local["digest"] == one[0]["digest"] == two["digest"]
             figures["tile_stages"] = {"no_dask": local, "workers_1": one[0], "workers_2": two, "identical": same}
@@ -197,10 +240,12 @@ def main() -> int:
 
         kinds = task_kinds(one[1])
         figures["tasks"] = kinds
-        print("\ntasks of the 1-worker run           count   work s  longest s")
+        print("\ntasks of the 1-worker run           count  worker s  longest s  in one process s")
         for kind, k in sorted(kinds.items()):
-            print(f"  {kind:<32} {k['tasks']:6d}  {k['work_s']:7.2f}  {k['longest_s']:9.3f}")
-        projection = amdahl(serial, kinds, per_task, [1, 2, 16, 64])
+            own = passes.get(kind)
+            print(f"  {kind:<32} {k['tasks']:6d}  {k['work_s']:8.2f}  {k['longest_s']:9.3f}  "
+                  + (f"{own:16.2f}" if own is not None else f"{'-':>16}"))
+        projection = amdahl(serial, kinds, passes, per_task, [1, 2, 16, 64])
         figures["amdahl"] = projection
         print(f"\nAmdahl for {args.map.name}: serial {projection['serial_s']:.1f} s of {serial['wall_s']:.1f} s, "
               f"parallel {projection['parallel_s']:.1f} s in {projection['tasks']} tasks")

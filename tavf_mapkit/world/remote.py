@@ -18,11 +18,11 @@ def remote_tile_files(fanout, grid: TileGrid, labelled: Path, tiles: list):
     groups = [tiles[start:start + size] for start in range(0, len(tiles), size)]
     arguments = (([(index, (Path(labelled) / f"{name}.npz").read_bytes()) for name, index in group],
                   grid.origin, grid.size) for group in groups)
-    for files in fanout.map(_tiles_task, arguments):
+    for files in fanout.map(_collision_task, arguments):
         yield from files
 
 
-def _tiles_task(tiles, origin, size):
+def _collision_task(tiles, origin, size):
     from tavf_mapkit.world.build import tile_files
 
     grid = TileGrid(tuple(origin), size)
