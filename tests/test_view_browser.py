@@ -4,6 +4,8 @@ a recorded drive, and against the build's report/index.html opened from disk.
 The page must load without console errors and without a request outside the local server (no CDN); the 2D
 map has one lane feature per lane of the build; clicking a finding marker opens its popup with rule and
 road; the 3D canvas is not blank; the time slider moves the ego on both views to the recorded positions.
+`twin drive --view` on the same build: the page follows the running drive (the ego moves on both views, where
+the served state says) and shows that the drive ended.
 Skips where chromium or playwright is missing, fails under CI=true (.ci/run installs chromium).
 """
 
@@ -197,3 +199,61 @@ def test_server_stops_on_sigterm(server):
     process.send_signal(signal.SIGTERM)
     assert process.wait(timeout=15) == -signal.SIGTERM
     assert "Traceback" not in process.stderr.read()
+
+
+def test_live_drive_moves_the_ego(browser, perth, tmp_path):
+    """`twin drive --view` on the Perth build: the page follows the running drive -- the ego moves on both
+    views, where the served state says it is -- and says when the drive has ended, with no console error."""
+    import re
+    import time
+
+    out = tmp_path / "live"
+    process = subprocess.Popen([str(BIN / "twin"), "drive", "--map", str(perth), "--random", "--duration", "40",
+                                "--seed", "0", "--traffic", "6", "--pedestrians", "3", "--no-plot", "--pace", "2",
+                                "--view", "--view-port", "0", "--no-browser", "-o", str(out)],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    found: list[str] = []
+
+    def read() -> None:
+        for line in process.stderr:
+            match = re.search(r"live view on (http://127\.0\.0\.1:\d+/)", line)
+            if match:
+                found.append(match.group(1))
+
+    threading.Thread(target=read, daemon=True).start()
+    try:
+        deadline = time.monotonic() + 120
+        while not found and process.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert found, "twin drive --view did not announce its view"
+        url = found[0]
+        watched = Watched(browser)
+        page = watched.page
+        page.goto(url)
+        page.wait_for_function("document.body.dataset.ready === 'true' && window.mapkit.live.updates > 0",
+                               timeout=120_000)
+        where = """() => { const live = window.mapkit.live, ego = live.latest.ego;
+                    return {t: ego.t, x: ego.x, y: ego.y, lat: ego.lat, lon: ego.lon, updates: live.updates,
+                            map: window.mapkit.map2d.replay.ego.getLatLng(),
+                            scene: window.mapkit.scene3d.ego.position.toArray()}; }"""
+        first = page.evaluate(where)
+        page.wait_for_function(f"window.mapkit.live.latest.ego.t > {first['t'] + 8}", timeout=60_000)
+        later = page.evaluate(where)
+        assert later["updates"] > first["updates"]
+        assert np.hypot(later["scene"][0] - first["scene"][0], later["scene"][2] - first["scene"][2]) > 5.0
+        assert (later["map"]["lat"], later["map"]["lng"]) != (first["map"]["lat"], first["map"]["lng"])
+        # where the state served last says (one evaluate runs between two polls: the views show that state)
+        for state in (first, later):
+            assert (state["map"]["lat"], state["map"]["lng"]) == pytest.approx((state["lat"], state["lon"]), abs=1e-9)
+            assert (state["scene"][0], state["scene"][2]) == pytest.approx((state["x"], -state["y"]), abs=1e-3)
+        assert process.wait(120) == 0
+        page.wait_for_function("window.mapkit.live.stopped", timeout=10_000)
+        assert page.evaluate("window.mapkit.live.finished") is True  # it saw the end before the server stopped
+        assert page.locator("#live-badge").inner_text() == "ENDED"
+        assert watched.errors == []
+        assert all(u.startswith((url, "data:")) for u in watched.requests)
+        page.close()
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait()

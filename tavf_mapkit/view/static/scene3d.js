@@ -38,6 +38,9 @@ export class MapkitScene3D {
     this.follow = false;
     this.run = null;
     this.actors = new Map();
+    // render on demand: only frames in which something changed (the camera, a tile loaded, the replay's or the
+    // live drive's time), not 60 a second of the same picture -- a page left open must not take a core
+    this.dirty = true;
     this.fitCamera();
     this.useOrbit();
     this.addToolbar();
@@ -47,8 +50,10 @@ export class MapkitScene3D {
     const animate = () => {
       requestAnimationFrame(animate);
       const delta = this.clock.getDelta();
-      if (this.controls.isFlyControls) this.controls.update(delta);
+      if (this.controls.isFlyControls) this.controls.update(delta);  // both dispatch "change" when they moved
       else this.controls.update();
+      if (!this.dirty) return;
+      this.dirty = false;
       this.renderer.render(this.scene, this.camera);
     };
     animate();
@@ -72,6 +77,7 @@ export class MapkitScene3D {
     this.controls = new OrbitControls(this.camera, this.renderer.domElement);
     this.controls.target.copy(this.target);
     this.controls.maxPolarAngle = Math.PI * 0.495;
+    this.controls.addEventListener("change", () => { this.dirty = true; });
     this.controls.update();
   }
 
@@ -81,6 +87,7 @@ export class MapkitScene3D {
     this.controls.movementSpeed = 40;
     this.controls.rollSpeed = 0.6;
     this.controls.dragToLook = true;
+    this.controls.addEventListener("change", () => { this.dirty = true; });
   }
 
   addToolbar() {
@@ -98,9 +105,11 @@ export class MapkitScene3D {
     for (const radio of bar.querySelectorAll("input[name=nav3d]")) {
       radio.addEventListener("change", () => (radio.value === "fly" ? this.useFly() : this.useOrbit()));
     }
-    bar.querySelector("#show-mesh").addEventListener("change", (e) => { this.meshGroup.visible = e.target.checked; });
+    bar.querySelector("#show-mesh").addEventListener("change", (e) => {
+      this.meshGroup.visible = e.target.checked; this.dirty = true;
+    });
     bar.querySelector("#show-collision").addEventListener("change",
-      (e) => { this.collisionGroup.visible = e.target.checked; });
+      (e) => { this.collisionGroup.visible = e.target.checked; this.dirty = true; });
     bar.querySelector("#follow-ego").addEventListener("change", (e) => { this.follow = e.target.checked; });
     this.status = bar.querySelector("#scene-status");
   }
@@ -110,6 +119,7 @@ export class MapkitScene3D {
     this.renderer.setSize(width, height);
     this.camera.aspect = width / height;
     this.camera.updateProjectionMatrix();
+    this.dirty = true;
   }
 
   async loadAll() {
@@ -142,6 +152,7 @@ export class MapkitScene3D {
         const job = jobs.shift();
         try { await job(); } catch (error) { failed += 1; console.warn("3D: " + error); }
         done += 1;
+        this.dirty = true;
         if (this.status) this.status.textContent = done < total ? "loading " + done + "/" + total : "";
       }
     };
@@ -152,6 +163,7 @@ export class MapkitScene3D {
 
   // --- replay ---
   showRun(run) {
+    this.dirty = true;
     this.run = run;
     this.replayGroup.clear();
     this.actors = new Map();
@@ -179,6 +191,7 @@ export class MapkitScene3D {
     const old = this.track.geometry;
     this.track.geometry = new THREE.BufferGeometry().setFromPoints(this.trackPoints(this.run));
     old.dispose();
+    this.dirty = true;
   }
 
   place(mesh, x, y, z, yaw, lift) {
@@ -187,6 +200,7 @@ export class MapkitScene3D {
   }
 
   showTime(index) {
+    this.dirty = true;
     const run = this.run;
     if (!run || run.ego.x[index] === null) return;
     const ego = run.ego;
