@@ -67,6 +67,7 @@ def connect(workers: int | None = None, scheduler: str | None = None,
     cluster = None
     try:
         if scheduler is not None:
+            _check_address(scheduler)
             client = Client(scheduler, timeout=timeout, set_as_default=False)
         else:
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
@@ -88,6 +89,18 @@ def connect(workers: int | None = None, scheduler: str | None = None,
         client.close()
         if cluster is not None:
             cluster.close()
+
+
+def _check_address(address: str) -> None:
+    """An address Dask cannot use (an unknown scheme) is refused before a Client is made: a half-made Client
+    complains again when the interpreter exits."""
+    from distributed.comm import parse_address
+    from distributed.comm.registry import get_backend
+
+    try:
+        get_backend(parse_address(address)[0])
+    except ValueError as error:
+        raise InputError(f"--scheduler {address}: {_reason(error)}") from None
 
 
 def _reason(error: BaseException) -> str:

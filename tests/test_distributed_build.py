@@ -146,3 +146,13 @@ def test_workers_and_scheduler_exclude_each_other(tmp_path):
     assert done.returncode == 2
     assert done.stderr.strip() == ("Error: --workers and --scheduler exclude each other (a scheduler brings its "
                                    "own workers)")
+
+
+def test_scheduler_address_of_unknown_scheme_is_one_line(tmp_path):
+    done = subprocess.run([MAPKIT, "build", str(shared_path(*PERTH)), "-o", str(tmp_path / "perth"),
+                           "--scheduler", "foo://127.0.0.1:1"], capture_output=True, text=True, timeout=60,
+                          check=False)
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == [
+        "Error: --scheduler foo://127.0.0.1:1: unknown address scheme 'foo' (known schemes: "
+        "['inproc', 'tcp', 'tls', 'ucx', 'ws', 'wss'])"]
