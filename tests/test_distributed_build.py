@@ -153,6 +153,6 @@ def test_scheduler_address_of_unknown_scheme_is_one_line(tmp_path):
                            "--scheduler", "foo://127.0.0.1:1"], capture_output=True, text=True, timeout=60,
                           check=False)
     assert done.returncode == 2
-    assert done.stderr.strip().splitlines() == [
-        "Error: --scheduler foo://127.0.0.1:1: unknown address scheme 'foo' (known schemes: "
-        "['inproc', 'tcp', 'tls', 'ucx', 'ws', 'wss'])"]
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1, done.stderr  # the known schemes it lists depend on the installed Dask
+    assert lines[0].startswith("Error: --scheduler foo://127.0.0.1:1: unknown address scheme 'foo' (known schemes: ")
