@@ -63,6 +63,10 @@
     // would otherwise take their clicks
     map.createPane("markers").style.zIndex = 450;
     const svg = L.svg({ padding: 0.5, pane: "markers" });
+    // what a replay or a live drive moves (track, traffic) on a canvas of its own: redrawing it at 10 Hz must
+    // not redraw every lane of the map under it
+    map.createPane("moving").style.zIndex = 420;
+    const moving = L.canvas({ padding: 0.1, pane: "moving" });
     const layers = {};
     const L_ = data.layers;
     if (options.basemap) {
@@ -144,7 +148,7 @@
       for (let i = 0; i < run.ego.t.length; i++) {
         if (run.ego.lat[i] !== null && run.ego.lon[i] !== null) track.push([run.ego.lat[i], run.ego.lon[i]]);
       }
-      replay.track = L.polyline(track, { renderer: canvas, color: "#51cf66", weight: 2, opacity: 0.7,
+      replay.track = L.polyline(track, { renderer: moving, color: "#51cf66", weight: 2, opacity: 0.7,
                                          interactive: false }).addTo(replay.group);
       replay.ego = L.circleMarker(track[0], { renderer: svg, radius: 7, weight: 2, color: "#ffffff",
         fillColor: "#2b8a3e", fillOpacity: 1, className: "ego-marker" }).addTo(replay.group);
@@ -167,7 +171,7 @@
         const frame = frames[lowerBound(frames.map((f) => f.t), t)];
         for (let k = 0; k < frame.ids.length; k++) {
           const person = frame.person[k];
-          L.circleMarker([frame.lat[k], frame.lon[k]], { renderer: canvas, radius: person ? 3 : 5, weight: 1,
+          L.circleMarker([frame.lat[k], frame.lon[k]], { renderer: moving, radius: person ? 3 : 5, weight: 1,
             color: "#212529", fillColor: person ? "#f06595" : "#22b8cf", fillOpacity: 1, interactive: false,
           }).addTo(replay.traffic);
         }
