@@ -2,7 +2,8 @@
 HTTP on loopback while it runs. The ego pose served advances and is the pose trajectory.csv has at the served
 simulated time; the traffic is there; the process ends by itself and frees the port; the drive's outputs are
 byte-identical to the same drive without --view; a frozen view server never holds the loop up; Ctrl-C and
-SIGTERM end the server too; a taken port is one line, exit 2."""
+SIGTERM end the server too; a taken port is one line, exit 2; with --udm, the UDM objects are served where they
+are."""
 
 from __future__ import annotations
 
@@ -228,3 +229,45 @@ def test_a_taken_port_is_one_line_exit_2(sample_build_dir, tmp_path):
                                                    f"use (give another --view-port; 0 picks a free one)")]
     assert time.perf_counter() - started < 5.0  # before the world is set up
     assert not (tmp_path / "run").exists()
+
+
+def test_udm_objects_are_served_where_they_are(sample_build_dir, tmp_path):
+    """With --udm: the objects of the UDM's latest answer, in WGS84 and at the same place in the local frame."""
+    from tavf_mapkit.opendrive import load_opendrive
+    from twin.udm.seed import seed_from_build
+    from twin.udm.server import ServerThread, create_app
+    from twin.udm.store import SqliteRtreeStore
+
+    store = SqliteRtreeStore()
+    seed_from_build(store, sample_build_dir)
+    served = []
+    with ServerThread(create_app(store, "token")) as server:
+        drive = LiveDrive(sample_build_dir, tmp_path / "run", "--pace", "4", "--udm", server.url, "--udm-bbox", "400")
+        try:
+            while drive.process.poll() is None:
+                try:
+                    state = json.loads(drive.get("api/live"))
+                except (urllib.error.URLError, ConnectionError):
+                    break
+                if state["udm"] and state["udm"]["objects"]:
+                    served.append(state["udm"])
+                time.sleep(0.1)
+            assert drive.process.wait(60) == 0, drive.stderr
+        finally:
+            drive.kill()
+    store.close()
+    assert served, "no UDM object was served"
+    georef = load_opendrive(next(sample_build_dir.glob("*.xodr"))).georeference
+    known = {f["id"] for features in _recorded_answers(tmp_path / "run") for f in features}
+    for answer in served:
+        assert answer["status"] == "ok"
+        for obj in answer["objects"]:
+            assert obj["id"] in known  # an object the drive's recording has in one of its answers
+            x, y = georef.wgs84_to_local(obj["lon"], obj["lat"])
+            assert (obj["x"], obj["y"]) == pytest.approx((float(x), float(y)), abs=1e-3)
+
+
+def _recorded_answers(run: Path) -> list[list[dict]]:
+    from twin.recording.reader import read_recording
+
+    return [record["features"] for record in read_recording(run / "session.mcap").udm_responses]
