@@ -73,6 +73,30 @@ class Browser:
         self._playwright.stop()
 
 
+def _watch_view_server(process) -> list[float]:
+    """[CPU seconds] of the twin's live view process, sampled every 0.2 s until it ends (the last sample)."""
+    import psutil
+
+    used = [0.0]
+
+    def watch() -> None:
+        child = None
+        while process.poll() is None:
+            try:
+                if child is None:
+                    child = next((c for c in psutil.Process(process.pid).children()
+                                  if "tavf_mapkit.view.live" in c.cmdline()), None)
+                if child is not None:
+                    times = child.cpu_times()
+                    used[0] = times.user + times.system
+            except psutil.Error:
+                pass
+            time.sleep(0.2)
+
+    threading.Thread(target=watch, daemon=True).start()
+    return used
+
+
 def drive(build: Path, out: Path, duration: float, mode: str, browser: Browser | None) -> dict:
     command = [str(BIN / "twin"), "drive", "--map", str(build), "--random", "--duration", str(duration), "--seed",
                "0", "--traffic", "20", "--pedestrians", "10", "--no-plot", "-o", str(out)]
@@ -99,6 +123,7 @@ def drive(build: Path, out: Path, duration: float, mode: str, browser: Browser |
         announced.wait(300)
         page = browser.browser.new_page(viewport={"width": 1400, "height": 850})
         page.goto(url[0])
+    server_cpu = _watch_view_server(process) if mode != "plain" else None
     loaded_after = None
     if page is not None:
         started = time.perf_counter()
@@ -115,6 +140,7 @@ def drive(build: Path, out: Path, duration: float, mode: str, browser: Browser |
     return {"mode": mode, "rtf": metrics["real_time_factor"], "wall_s": metrics["wall_seconds"],
             "trajectory_sha256": hashlib.sha256((out / "trajectory.csv").read_bytes()).hexdigest(),
             "view": metrics.get("view"), "page_updates": updates,
+            "server_cpu_s": server_cpu[0] if server_cpu else None,
             # the page's load (map data, 3D tiles) and then chromium's CPU while it watched the rest of the drive
             "page_load_s": loaded_after, "browser_cpu_s_after_load": browser_cpu if page is not None else None}
 
@@ -160,7 +186,12 @@ def main() -> None:
                                   "ratios": [round(r, 4) for r in ratios],
                                   "cost": round(1 - statistics.median(ratios), 4),
                                   "page_updates": [r["page_updates"] for r in mine if r["page_updates"] is not None],
-                                  "states_sent": [r["view"]["states_sent"] for r in mine if r["view"]]}
+                                  "states_sent": [r["view"]["states_sent"] for r in mine if r["view"]],
+                                  # the loop's own cost: time in the hand-overs over the loop's wall time
+                                  "hand_over_share": [round(r["view"]["hand_over_seconds"] / r["wall_s"], 5)
+                                                      for r in mine if r["view"]],
+                                  "server_cpu_share": [round(r["server_cpu_s"] / r["wall_s"], 4)
+                                                       for r in mine if r["server_cpu_s"] is not None]}
     if args.json:
         print(json.dumps({**summary, "runs": runs}, indent=2))
     else:
@@ -169,6 +200,9 @@ def main() -> None:
             target = "" if mode == "plain" else f"< {TARGET_COST:.0%}"
             print(f"{mode:10s} {figures['rtf_median']:9.2f}x {figures['ratio_median']:15.3f} "
                   f"{figures['cost']:7.1%}  {target}")
+            if figures["hand_over_share"]:
+                print(f"           hand-overs: {statistics.median(figures['hand_over_share']):.3%} of the loop's "
+                      f"wall time; view server: {statistics.median(figures['server_cpu_share']):.1%} of a core")
         print(f"trajectories byte-identical across all {len(runs)} drives: {identical}")
     if not identical:
         raise SystemExit("trajectories differ between drives")

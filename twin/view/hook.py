@@ -57,6 +57,7 @@ class LiveViewHook(SessionHook):
         self.sent = 0
         self.skipped = 0  # snapshots not handed over: no room in the socket pair (the child is behind or stuck)
         self._next_send = 0.0
+        self.hand_over_seconds = 0.0  # what the hand-overs took the loop (the rest of a step is one clock read)
         self._last_frame: Frame | None = None
         self._traffic = self._udm = None
         self._udm_objects = None  # the UDM hook's objects tuple last handed over (identity: changed or not)
@@ -93,6 +94,7 @@ class LiveViewHook(SessionHook):
         if now >= self._next_send:
             self._next_send = now + self.period_s
             self._hand_over(frame)
+            self.hand_over_seconds += time.monotonic() - now
 
     def finish(self, session: SessionView, metrics: dict[str, Any]) -> None:
         if self.child is None:
@@ -104,7 +106,7 @@ class LiveViewHook(SessionHook):
             self.child.close(CLOSE_TIMEOUT_S)
         finally:
             metrics["view"] = {"url": self.url, "rate_hz": self.rate_hz, "states_sent": self.sent,
-                               "states_skipped": self.skipped}
+                               "states_skipped": self.skipped, "hand_over_seconds": round(self.hand_over_seconds, 6)}
             self.child = None
 
     def _hand_over(self, frame: Frame) -> None:
