@@ -238,3 +238,29 @@ def test_gnss_trace_and_matched_path(sample_build_dir, sample_run):
     path = shapely.MultiLineString([np.column_stack(odr.georeference.wgs84_to_local(*np.array(
         f["geometry"]["coordinates"]).T)) for f in layers["matched"]["features"]])
     assert max(path.distance(shapely.Point(p)) for p in zip(x, y)) < 0.5
+
+
+def test_view_without_a_display_serves_and_says_so(sample_build_dir):
+    """Asked to open a browser where there is no display, mapkit view does not start one (a text browser would
+    take the terminal, and the command would hang on it): it serves, says to open the address, and stops on
+    SIGTERM."""
+    import os
+    import signal
+
+    env = {key: value for key, value in os.environ.items() if key not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    mapkit = Path(sys.executable).parent / "mapkit"
+    process = subprocess.Popen([str(mapkit), "view", str(sample_build_dir), "--port", "0"], env=env,
+                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        import selectors
+
+        lines, waiting = [], selectors.DefaultSelector()
+        waiting.register(process.stderr, selectors.EVENT_READ)
+        while len(lines) < 2 and waiting.select(timeout=60):  # a line that never comes fails, never hangs
+            lines.append(process.stderr.readline().strip())
+        assert len(lines) == 2, lines
+        assert lines[0].startswith("mapkit view: http://127.0.0.1:") and lines[0].endswith("(Ctrl-C to stop)")
+        assert lines[1] == "mapkit view: no display to open a browser on; open the address above"
+    finally:
+        process.send_signal(signal.SIGTERM)
+        assert process.wait(timeout=30) is not None

@@ -41,7 +41,7 @@ def view(build: str, runs: tuple[str, ...], port: int, no_browser: bool, basemap
     Stop it with Ctrl-C. See docs/view.md.
     """
     from tavf_mapkit.errors import InputError
-    from tavf_mapkit.view.server import bind, create_app, load_view_data, serve
+    from tavf_mapkit.view.server import bind, create_app, load_view_data, open_in_browser, serve
 
     if output is not None:
         if runs:
@@ -62,10 +62,8 @@ def view(build: str, runs: tuple[str, ...], port: int, no_browser: bool, basemap
         else:
             click.echo(f"mapkit view: {url}  (Ctrl-C to stop)", err=True)
         sys.stdout.flush()
-        if not no_browser:
-            import webbrowser
-
-            webbrowser.open(url)
+        if not no_browser and not open_in_browser(url):
+            click.echo("mapkit view: no display to open a browser on; open the address above", err=True)
 
     serve(create_app(view_data), sock, on_ready=ready)
 

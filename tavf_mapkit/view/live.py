@@ -20,7 +20,6 @@ import json
 import math
 import os
 import socket
-import sys
 import threading
 import time
 from pathlib import Path
@@ -28,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from tavf_mapkit.view.server import HOST, create_app, make_server
+from tavf_mapkit.view.server import HOST, create_app, make_server, open_in_browser
 
 START_TIMEOUT_S = 20.0
 LINGER_S = 1.0  # at most this long after the drive ended, for a watching page to get the final state
@@ -148,11 +147,6 @@ class LazyViewData:
         return self._loaded().scene_json
 
 
-def has_display() -> bool:
-    """Whether a browser can open a window here (else webbrowser may start a text browser in the terminal)."""
-    return sys.platform in ("darwin", "win32") or bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
-
-
 def _serve(settings: dict[str, Any], parent) -> None:
     """The child: serve the page on the socket the twin bound, take snapshots until the drive ends."""
     try:
@@ -181,10 +175,7 @@ def _serve(settings: dict[str, Any], parent) -> None:
     parent.stats = lambda: {"states": state.seq}
     parent.ready()
     if settings.get("open_browser"):
-        import webbrowser
-
-        url = f"http://{HOST}:{sock.getsockname()[1]}/"
-        threading.Thread(target=webbrowser.open, args=(url,), daemon=True).start()
+        open_in_browser(f"http://{HOST}:{sock.getsockname()[1]}/")
     try:
         closing = False
         while not closing:

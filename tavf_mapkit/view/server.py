@@ -17,6 +17,8 @@ and the vendored JavaScript are served as static files. Routes:
 from __future__ import annotations
 
 import json
+import os
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -122,6 +124,23 @@ def create_app(view: ViewData, live=None):
             if (view.build_path / folder).is_dir():
                 routes.append(Mount(f"/build/{folder}", app=StaticFiles(directory=view.build_path / folder)))
     return Starlette(routes=routes)
+
+
+def has_display() -> bool:
+    """Whether a browser can open a window here (else webbrowser may start a text browser in the terminal)."""
+    return sys.platform in ("darwin", "win32") or bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def open_in_browser(url: str) -> bool:
+    """Open ``url`` in the desktop's browser, off this thread (a browser that takes its time must not hold up the
+    server); False where there is no display to open one on."""
+    if not has_display():
+        return False
+    import threading
+    import webbrowser
+
+    threading.Thread(target=webbrowser.open, args=(url,), daemon=True).start()
+    return True
 
 
 def bind(port: int):

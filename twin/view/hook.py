@@ -64,7 +64,7 @@ class LiveViewHook(SessionHook):
 
     def start(self, session: SessionView) -> None:
         from tavf_mapkit.opendrive.georef import GeoReference
-        from tavf_mapkit.view.live import has_display
+        from tavf_mapkit.view.server import has_display
         from twin.childproc import ChildProcess
         from twin.sim.build import georeference_for_driving
 
