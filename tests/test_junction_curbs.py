@@ -76,7 +76,10 @@ def assert_junction_curbs(odr, surface, curbs):
     for solid in curbs:
         mesh = solid.mesh
         footprint = _plan(mesh)
-        assert shapely.area(shapely.intersection(footprint, road)) < 5e-4, solid.source
+        # on the road nowhere by more than the 1 mm the curve repair may move a border (where a nearly flat piece
+        # became a line, a lane border steps by up to its lever x half the piece's turn: a sliver under 1 mm wide)
+        on_road = shapely.intersection(footprint, road)
+        assert shapely.area(on_road) < 5e-4 or shapely.buffer(on_road, -0.5e-3).is_empty, solid.source
         assert shapely.distance(footprint, junction_plan) < 2.5e-3, solid.source
         # every corner has a twin 0.35 m below (top 0.15 m above the border, foundation 0.2 m below it)
         xy, inverse = np.unique(np.round(mesh.vertices[:, :2], 9), axis=0, return_inverse=True)
