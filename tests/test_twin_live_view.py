@@ -199,7 +199,8 @@ def test_a_frozen_view_server_never_holds_the_loop_up(sample_build_dir, tmp_path
 
 @pytest.mark.parametrize("how", ["ctrl-c", "sigterm"])
 def test_ctrl_c_and_sigterm_stop_the_server(sample_build_dir, tmp_path, how):
-    drive = LiveDrive(sample_build_dir, tmp_path / "run", "--pace", "1")
+    # long enough that a loaded machine cannot finish it before the signal (16 s at real time did, in CI)
+    drive = LiveDrive(sample_build_dir, tmp_path / "run", "--pace", "1", "--duration", "600")
     try:
         assert json.loads(drive.get("api/live"))["finished"] is False
         view = drive.view_process()
