@@ -221,3 +221,19 @@ def test_the_build_prints_the_verdict_and_still_succeeds(sample_build_dir):
     assert (facts["status"] == "fail") == (errors > 0)
     for rule, count in sorted(facts["validate_errors_by_rule"].items(), key=lambda item: -item[1])[:3]:
         assert f"{rule} {count}" in line
+
+
+def test_the_report_map_samples_a_big_map_more_coarsely(sample_build_dir, monkeypatch):
+    """The report's map keeps the view's 1 m on a district and spreads a fixed number of samples over a region's
+    lanes (its memory is bounded by REPORT_MAP_SAMPLES, not by the map)."""
+    import numpy as np
+
+    from tavf_mapkit.opendrive import load_opendrive
+    from tavf_mapkit.pipeline.builtin import check
+
+    odr = load_opendrive(next(sample_build_dir.glob("*.xodr")))
+    arrays = odr.arrays
+    lane_length = float(np.sum((arrays.section_end - arrays.section_s0)[arrays.lane_section]))
+    assert lane_length > 100 and check.report_map_step(odr) == 1.0
+    monkeypatch.setattr(check, "REPORT_MAP_SAMPLES", 50)
+    assert check.report_map_step(odr) == lane_length / 50

@@ -39,7 +39,7 @@ THRESHOLDS = {
 class CheckStage(Stage):
     inputs = ("xodr",)
     # 2: compare.json names the xodr by file name; 3: validation findings in the verdict; 4: the page's map
-    version = "4"
+    version = "5"
     description = "validate, georeference round trip, compare / match-trace against the pipeline's references"
 
     def options(self, context: BuildContext) -> dict:
@@ -263,6 +263,23 @@ def _evaluate(results: dict, thresholds: dict) -> list[dict]:
     return checks
 
 
+#: most lane samples the report's embedded map takes: each costs about 350 bytes while the map is made, and a
+#: region's report must not hold the build's memory (Maribor, 1,985 km of lanes at 1 m: +690 MiB; at 5 m: +130)
+REPORT_MAP_SAMPLES = 400_000
+
+
+def report_map_step(odr) -> float:
+    """Sampling step (m) of the report's lane and mark layers: the view's 1 m, coarser on maps with more lane
+    length than REPORT_MAP_SAMPLES samples of it (``mapkit view`` keeps 1 m)."""
+    import numpy as np
+
+    from tavf_mapkit.view.mapdata import STEP_M
+
+    arrays = odr.arrays
+    lane_length = float(np.sum((arrays.section_end - arrays.section_s0)[arrays.lane_section]))
+    return max(STEP_M, lane_length / REPORT_MAP_SAMPLES)
+
+
 def _page_map(context, odr, findings: list, matched) -> tuple[str, str]:
     """(head, body) of the page's 2D map (tavf_mapkit.view: the same map as ``mapkit view``), or a note
     when the map cannot be drawn (the check itself stands)."""
@@ -276,7 +293,7 @@ def _page_map(context, odr, findings: list, matched) -> tuple[str, str]:
     attribution = OSM_ATTRIBUTION if derived_from_osm(context.input_path, context.input_kind) else None
     try:
         data = map_data(odr, name=context.name, findings=findings, repairs=repairs, match=matched,
-                        attribution=attribution)
+                        attribution=attribution, step=report_map_step(odr))
     except MapkitError as error:
         context.note(f"report map skipped: {error}")
         return "", f"<p>The map could not be drawn: {error}</p>"
