@@ -12,7 +12,7 @@ import numpy as np
 
 from tavf_mapkit.cli.options import output_option, step_option, xodr_argument
 from tavf_mapkit.errors import InputError
-from tavf_mapkit.opendrive.layers import LAYERS, json_properties
+from tavf_mapkit.opendrive.layers import LAYERS, geojson_feature
 
 
 class LatLonType(click.ParamType):
@@ -211,13 +211,7 @@ def _geojson(odr, layer, step, transform, digits, crs, stream) -> None:
         x, y = transform(feature.coordinates[:, 0], feature.coordinates[:, 1])
         coords = np.column_stack([np.round(np.atleast_1d(x), digits), np.round(np.atleast_1d(y), digits),
                                   np.round(feature.coordinates[:, 2], 4)]).tolist()
-        if feature.kind == "Point":
-            geometry = {"type": "Point", "coordinates": coords[0]}
-        elif feature.kind == "Polygon":
-            geometry = {"type": "Polygon", "coordinates": [coords]}
-        else:
-            geometry = {"type": "LineString", "coordinates": coords}
-        features.append({"type": "Feature", "geometry": geometry, "properties": json_properties(feature.properties)})
+        features.append(geojson_feature(feature, coords))
     collection = {"type": "FeatureCollection", "features": features}
     if crs.lower() != "wgs84":
         collection["crs"] = {"type": "name", "properties": {"name": crs}}

@@ -136,3 +136,14 @@ def json_properties(properties: dict) -> dict:
             value = bool(value)
         out[key] = value
     return out
+
+
+def geojson_feature(feature: Feature, coordinates: list) -> dict:
+    """A GeoJSON Feature of a layer feature, with its vertices as given (already projected and rounded)."""
+    if feature.kind == "Point":
+        geometry = {"type": "Point", "coordinates": coordinates[0]}
+    elif feature.kind == "Polygon":
+        geometry = {"type": "Polygon", "coordinates": [coordinates]}
+    else:
+        geometry = {"type": "LineString", "coordinates": coordinates}
+    return {"type": "Feature", "geometry": geometry, "properties": json_properties(feature.properties)}

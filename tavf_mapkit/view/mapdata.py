@@ -79,7 +79,7 @@ class _Projector:
     def collection(self, features) -> dict:
         """opendrive.layers features -> a GeoJSON FeatureCollection: lines and rings thinned and every vertex
         projected in one vectorised pass (a city has thousands of lanes)."""
-        from tavf_mapkit.opendrive.layers import json_properties
+        from tavf_mapkit.opendrive.layers import geojson_feature
 
         features = list(features)
         if not features:
@@ -108,16 +108,7 @@ class _Projector:
         kept_xy, kept_owner = kept_xy[order], kept_owner[order]
         vertices = np.split(np.array(self.lonlat(kept_xy)), np.cumsum(np.bincount(kept_owner,
                                                                                   minlength=len(features)))[:-1])
-        out = []
-        for feature, points in zip(features, vertices):
-            coordinates = points.tolist()
-            if feature.kind == "Point":
-                geometry = {"type": "Point", "coordinates": coordinates[0]}
-            elif feature.kind == "Polygon":
-                geometry = {"type": "Polygon", "coordinates": [coordinates]}
-            else:
-                geometry = {"type": "LineString", "coordinates": coordinates}
-            out.append({"type": "Feature", "geometry": geometry, "properties": json_properties(feature.properties)})
+        out = [geojson_feature(feature, points.tolist()) for feature, points in zip(features, vertices)]
         return {"type": "FeatureCollection", "features": out}
 
     def shapes(self, shapes: dict) -> dict:
