@@ -28,6 +28,12 @@ from click.testing import CliRunner
 from twin.cli.main import cli
 
 TWIN = str(Path(sys.executable).parent / "twin")
+def _default_ctrl_c() -> None:
+    """In the child before exec: Ctrl-C as a terminal gives it. A process started with SIGINT ignored keeps ignoring
+    it (Python then installs no KeyboardInterrupt), and a test run earlier in the session may have left pytest so."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 DRIVE = ["--random", "--duration", "16", "--seed", "3", "--traffic", "6", "--pedestrians", "3", "--no-plot"]
 
 
@@ -39,7 +45,7 @@ class LiveDrive:
         self.process = subprocess.Popen([TWIN, "drive", "--map", str(build), *DRIVE, "-o", str(out), "--view",
                                          "--view-port", "0", "--no-browser", *extra],
                                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                        start_new_session=True)
+                                        start_new_session=True, preexec_fn=_default_ctrl_c)
         self.lines: list[str] = []
         self.url: str | None = None
         self._announced = threading.Event()
