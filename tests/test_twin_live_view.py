@@ -28,10 +28,16 @@ from click.testing import CliRunner
 from twin.cli.main import cli
 
 TWIN = str(Path(sys.executable).parent / "twin")
-def _default_ctrl_c() -> None:
-    """In the child before exec: Ctrl-C as a terminal gives it. A process started with SIGINT ignored keeps ignoring
-    it (Python then installs no KeyboardInterrupt), and a test run earlier in the session may have left pytest so."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
+class _DefaultCtrlC:
+    """Children started inside get Ctrl-C as a terminal gives it: a process started with SIGINT ignored keeps
+    ignoring it (Python then installs no KeyboardInterrupt), and a test run earlier in the session may have left
+    pytest so. A handled signal is reset to the default at exec; an ignored one is not."""
+
+    def __enter__(self):
+        self.previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+
+    def __exit__(self, *_):
+        signal.signal(signal.SIGINT, self.previous)
 
 
 DRIVE = ["--random", "--duration", "16", "--seed", "3", "--traffic", "6", "--pedestrians", "3", "--no-plot"]
@@ -42,10 +48,11 @@ class LiveDrive:
     view listens (read from its stderr line), ``stderr`` all it wrote."""
 
     def __init__(self, build: Path, out: Path, *extra: str):
-        self.process = subprocess.Popen([TWIN, "drive", "--map", str(build), *DRIVE, "-o", str(out), "--view",
-                                         "--view-port", "0", "--no-browser", *extra],
-                                        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                        start_new_session=True, preexec_fn=_default_ctrl_c)
+        with _DefaultCtrlC():
+            self.process = subprocess.Popen([TWIN, "drive", "--map", str(build), *DRIVE, "-o", str(out), "--view",
+                                             "--view-port", "0", "--no-browser", *extra],
+                                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                            start_new_session=True)
         self.lines: list[str] = []
         self.url: str | None = None
         self._announced = threading.Event()
