@@ -17,9 +17,14 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from tavf_mapkit.opendrive import load_opendrive
+from tavf_mapkit.opendrive.connecting_curve import reverses
 from tavf_mapkit.opendrive.geometry import param_poly3_length
 from tavf_mapkit.opendrive.repair_contacts import (
-    DROPPED_JUNCTION, DROPPED_LINK, REBUILT_CONNECTING_ROAD, REFITTED_LANE_WIDTHS, SPLIT_CONNECTING_ROAD,
+    DROPPED_JUNCTION,
+    DROPPED_LINK,
+    REBUILT_CONNECTING_ROAD,
+    REFITTED_LANE_WIDTHS,
+    SPLIT_CONNECTING_ROAD,
     repair_contacts,
 )
 from tavf_mapkit.opendrive.repair_controllers import MERGED_CONTROLLERS, repair_controllers
@@ -230,6 +235,30 @@ def test_a_link_without_a_sensible_curve_is_dropped_and_named(tmp_path):
     assert str(repairs[1]) == "line 1: dropped junction 9: no connection is left in it"
     assert sorted(repaired.road_by_id) == ["1", "2"] and not repaired.junctions
     assert repaired.road_by_id["1"].successor is None and repaired.road_by_id["2"].predecessor is None
+
+
+def test_a_connecting_road_that_reverses_on_itself_is_rebuilt(tmp_path):
+    """A connecting road that meets both neighbours exactly but whose paramPoly3 runs forward, back and forward
+    again along one line (two cusps; netconvert draws some junction curves with a cusp: London road 9919) is
+    rebuilt from lane border to lane border like one that misses them; no chain of arcs, and no lane, follows
+    a cusp."""
+    cusp = (0.0, 12.6, -30.0, 20.0, 0.0, 0.0, 0.0, 0.0)  # u' = 60 (p - 0.3) (p - 0.7); u(1) = 2.6
+    uv = " ".join(f'{k}="{v!r}"' for k, v in zip(("aU", "bU", "cU", "dU", "aV", "bV", "cV", "dV"), cusp))
+    length = float(param_poly3_length(np.array([cusp + (1.0,)]), np.array([1.0]))[0])
+    geometry = (f'<geometry s="0" x="0" y="0" hdg="0" length="{length!r}"><paramPoly3 {uv} '
+                'pRange="normalized"/></geometry>', length)
+    odr = _load(tmp_path, junction_document((0, 0, 0), [3.5], (2.6, 0, 0), [3.5], [(-1, -1)], c_geometry=geometry))
+    distance, heading = contact_misfit(odr, "3")
+    assert distance <= POSITION and heading <= HEADING  # it meets its neighbours: only the cusp is wrong
+    repaired, repairs = repair_contacts(odr)
+    assert [str(r) for r in repairs] == [
+        "line 1: road 3: between road 1 and road 2: its reference line reversed on itself (a cusp); new reference "
+        "line (paramPoly3 of 2.6 m) from lane border to lane border"]
+    reread = _reread(tmp_path, repaired)
+    distance, heading = contact_misfit(reread, "3")
+    assert distance <= POSITION and heading <= HEADING
+    assert not reverses(np.array(reread.road_by_id["3"].reference_line.geometries[0].params))[0]
+    assert repair_contacts(reread)[1] == []
 
 
 def test_only_the_widths_are_refitted_where_the_reference_line_is_right(tmp_path):

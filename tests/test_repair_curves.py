@@ -161,6 +161,33 @@ def test_poly3_and_a_curve_a_hair_longer_than_its_length_become_arcs():
     assert {0.0, 10.0, 30.0, 55.0} <= set(starts) and starts == sorted(starts)
 
 
+def test_an_inflection_on_a_wide_road_becomes_arcs_and_a_line():
+    """netconvert's paramPoly3 of Krems road 4401 (an S-bend, curvature -3.8e-3 to +4e-3 /m) on a road 8 m wide:
+    the piece at the inflection turns too little for an arc (MIN_CURVATURE) and becomes a line. The knots
+    around it carry the chain's usual heading shift (~0.8 of the budget at 8 m); a line judged on that at half
+    the budget could never fit, however finely split, and the curve was kept -- libOpenDRIVE then read it
+    through its chord table, up to 6 mm off."""
+    pp3 = (0.0, 20.81348329, 20.80815897, -13.87285633, 0.0, 0.0, -0.81697359, 0.44261465)
+    length = 27.751534075342377
+    uv = " ".join(f'{k}="{v!r}"' for k, v in zip(("aU", "bU", "cU", "dU", "aV", "bV", "cV", "dV"), pp3))
+    lanes = """<laneSection s="0"><center><lane id="0" type="none" level="false"/></center><right>
+        <lane id="-1" type="driving" level="false"><width sOffset="0" a="4" b="0" c="0" d="0"/></lane>
+        <lane id="-2" type="driving" level="false"><width sOffset="0" a="4" b="0" c="0" d="0"/></lane>
+        </right></laneSection>"""
+    geometry = (f'<geometry s="0" x="0" y="0" hdg="0.3" length="{length!r}"><paramPoly3 {uv} '
+                'pRange="normalized"/></geometry>')
+    odr = loads_opendrive(document(road_xml(geometry, length, lanes)))
+    repaired, repairs = repair_curves(odr)
+    assert [r.action for r in repairs] == [CURVE_AS_ARCS], [str(r) for r in repairs]
+    after = repaired.roads[0].reference_line
+    assert _kinds(repaired) == {GeometryKind.LINE, GeometryKind.ARC}
+    s = np.linspace(0.0, length, 20_001)
+    for t in (0.0, -4.0, -8.0):
+        moved = np.linalg.norm(_offset_points(odr.roads[0].reference_line, s, t) - _offset_points(after, s, t),
+                               axis=1)
+        assert moved.max() <= TOLERANCE, (t, moved.max())
+
+
 def _offset_points(line, s, t):
     """Points at lateral offset t of a reference line at s."""
     x, y, heading, _ = line.evaluate(s)

@@ -75,14 +75,29 @@ def hermite_curve(x0: float, y0: float, h0: float, x1: float, y1: float, h1: flo
     return ConnectingCurve(geometry, length, problem)
 
 
+#: points at which a curve's speed is checked for a cusp
+_CUSP_SAMPLES = 257
+
+
+def reverses(params: np.ndarray, p_end: np.ndarray | float = 1.0) -> np.ndarray:
+    """Per paramPoly3 (rows of its nine parameters, over p in [0, p_end]) whether it (nearly) reverses on itself:
+    its slowest point slower than CUSP_SPEED times its fastest. No chain of arcs, and no lane, follows a cusp."""
+    params = np.atleast_2d(np.asarray(params, dtype=float))
+    p = np.broadcast_to(np.asarray(p_end, dtype=float), (len(params),))[:, None] * np.linspace(
+        0.0, 1.0, _CUSP_SAMPLES)[None, :]
+    du = params[:, 1:2] + p * (2 * params[:, 2:3] + 3 * params[:, 3:4] * p)
+    dv = params[:, 5:6] + p * (2 * params[:, 6:7] + 3 * params[:, 7:8] * p)
+    speed = np.hypot(du, dv)
+    return speed.min(axis=1) < CUSP_SPEED * speed.max(axis=1)
+
+
 def _problem(params, theta: float) -> str | None:
     """Why the curve is no road (a cusp or a loop), or None."""
-    p = np.linspace(0.0, 1.0, 257)
+    if reverses(params)[0]:
+        return "the curve would reverse on itself (a cusp)"
+    p = np.linspace(0.0, 1.0, _CUSP_SAMPLES)
     du = params[1] + p * (2 * params[2] + 3 * params[3] * p)
     dv = params[5] + p * (2 * params[6] + 3 * params[7] * p)
-    speed = np.hypot(du, dv)
-    if speed.min() < CUSP_SPEED * speed.max():
-        return "the curve would reverse on itself (a cusp)"
     winding = float(np.abs(np.diff(np.unwrap(np.arctan2(dv, du)))).sum())
     if winding > theta + SPARE_TURN:
         return (f"the curve would wind {math.degrees(winding):.0f} degrees for a turn of "

@@ -20,8 +20,9 @@ Why netconvert's connecting roads miss their neighbours (SUMO netconvert 1.28, N
   build gains two 1.5 mm geometry gaps), so the widths are refitted here instead.
 
 The repair, per connecting road (in a junction, one lane section, lanes on one side, road links at both ends)
-whose lanes miss the lanes they link by more than TOLERANCE or HEADING_TOLERANCE, or whose @length is not its
-geometry's:
+whose lanes miss the lanes they link by more than TOLERANCE or HEADING_TOLERANCE, whose @length is not its
+geometry's, or whose reference line reverses on itself (a paramPoly3 with a cusp: netconvert draws a few junction
+curves as loops, e.g. London road 9919, which no lane follows and no chain of arcs can replace):
 - lanes are grouped so that each group's targets are adjacent lanes of the neighbours; a road whose lanes need
   two groups (a merge) is split, the extra group becoming a new connecting road with its own junction
   connection;
@@ -44,9 +45,16 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from tavf_mapkit.opendrive.connecting_curve import (
-    ConnectingCurve, cubic_record, hermite_curve, hermite_profile, smooth_step, wrap,
+    ConnectingCurve,
+    cubic_record,
+    hermite_curve,
+    hermite_profile,
+    reverses,
+    smooth_step,
+    wrap,
 )
 from tavf_mapkit.opendrive.cubic import EMPTY_PROFILE, CubicProfile
+from tavf_mapkit.opendrive.geometry import GeometryKind
 from tavf_mapkit.opendrive.junction import Connection, LaneLink
 from tavf_mapkit.opendrive.refline import ReferenceLine
 from tavf_mapkit.opendrive.repair import Repair
@@ -129,15 +137,16 @@ def repair_contacts(odr):
     roads_by_id = odr.road_by_id
     table = end_table(odr)
     next_road = _next_id(road.id for road in odr.roads)
+    reversing = _reversing_roads(odr)
     roads, repairs, dropped = [], [], set()
     # connecting road id -> [(new road, {old lane id: new lane id})] that replace it in its junction
     replaced: dict = {}
-    for road in odr.roads:
+    for index, road in enumerate(odr.roads):
         ends = _ends(road, roads_by_id, table)
         if ends is None:
             roads.append(road)
             continue
-        outcome = _repair_road(road, ends, next_road, table)
+        outcome = _repair_road(road, ends, next_road, table, index in reversing)
         if outcome is None:
             roads.append(road)
             continue
@@ -166,6 +175,25 @@ def repair_contacts(odr):
     if dropped:
         repaired = _without(repaired, list(repaired.roads), dropped)
     return repaired, repairs
+
+
+#: paramPoly3 rows checked for a cusp at once (samples per row: connecting_curve._CUSP_SAMPLES)
+_ROWS_PER_BATCH = 4096
+
+
+def _reversing_roads(odr) -> set:
+    """Indices of the roads whose reference line has a paramPoly3 that reverses on itself (netconvert draws some
+    junction curves as loops with a cusp): a connecting road that does is rebuilt like one that misses its
+    neighbours, since no lane follows it and no chain of arcs can replace it."""
+    table = odr.arrays.geometries
+    rows = np.flatnonzero((table.kind == int(GeometryKind.PARAM_POLY3)) & (table.length > 0))
+    found = []
+    for first in range(0, len(rows), _ROWS_PER_BATCH):
+        batch = rows[first:first + _ROWS_PER_BATCH]
+        params = table.params[batch]
+        p_end = np.where(params[:, 8] > 0.5, 1.0, table.length[batch])
+        found.append(table.group[batch][reverses(params, p_end)])
+    return set(np.concatenate(found).tolist()) if found else set()
 
 
 def _next_id(ids) -> int:
@@ -257,20 +285,25 @@ def _width(end, lane_id) -> float:
     return float(np.hypot(*(end.outer[lane_id] - end.inner[lane_id])))
 
 
-def _repair_road(road, ends, next_road: int, table):
+def _repair_road(road, ends, next_road: int, table, reversing: bool = False):
     """([(road that replaces it, {old lane id: new lane id})], repairs), or None when it meets its neighbours
-    already. No roads: the link was dropped."""
+    already (and its reference line does not reverse, ``reversing``). No roads: the link was dropped."""
     start, end = ends
     groups = _groups(road, ends)
     consistent = _length_consistent(road)
     distance, heading_break = _misfit(road, ends, table)
-    if len(groups) == 1 and consistent and distance <= TOLERANCE and heading_break <= HEADING_TOLERANCE:
+    meets = distance <= TOLERANCE and heading_break <= HEADING_TOLERANCE
+    if len(groups) == 1 and consistent and meets and not reversing:
         return None
     where = f"between road {start.road.id} and road {end.road.id}"
-    problem = (f"its lanes were up to {distance:.3g} m from the lanes they link, headings "
-               f"{math.degrees(heading_break):.3g} deg apart" if distance > TOLERANCE or
-               heading_break > HEADING_TOLERANCE else f"@length {road.length:.6g} m is not its geometry's")
-    if len(groups) == 1 and consistent:
+    if not meets:
+        problem = (f"its lanes were up to {distance:.3g} m from the lanes they link, headings "
+                   f"{math.degrees(heading_break):.3g} deg apart")
+    elif reversing:
+        problem = "its reference line reversed on itself (a cusp)"
+    else:
+        problem = f"@length {road.length:.6g} m is not its geometry's"
+    if len(groups) == 1 and consistent and not reversing:
         length = float(road.length)
         targets = {lane.id: (_width(start, lane.id), _width(end, lane.id)) for lane in groups[0]}
         refitted, refitted_break = _misfit(road, ends, table, targets)

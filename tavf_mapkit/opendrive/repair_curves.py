@@ -30,7 +30,8 @@ oracles then read the file as we do (they evaluate the same arcs); the tolerance
 moved from netconvert's curves.
 
 A curve that would need more than MAX_PIECES arcs, or whose arcs cannot be fitted (a cusp, an @length longer
-than the curve), is kept as it is, and a Repair record says so. A road whose geometries are not in s order is
+than the curve), is kept as it is, and a Repair record says so. (A connecting road with a cusp never gets here:
+repair_contacts rebuilds it first.) A road whose geometries are not in s order is
 left alone (structure.s-order). A map without paramPoly3 and poly3 is returned unchanged: repairing a repaired
 map changes nothing.
 """
@@ -522,9 +523,12 @@ def _arc_chains(curves, curve, pa, pb, used, lever, budget):
     at_end = np.where(nearly_flat, np.maximum(at_end, line_end), at_end)
     deviation = np.maximum(inside.max(axis=1), np.maximum(at_knot, at_end))
     deviation = np.where(np.isfinite(curvature), deviation, np.inf)
-    # a line may use only part of the budget: what it misses of the curve's turn the closure must make up on
-    # the pieces before it, and a long line leaves them none
-    deviation = np.where(nearly_flat, deviation / _FLAT_LINE_SHARE, deviation)
+    # a line may use only part of the budget for the turn it misses (half its knots' difference at either end):
+    # the closure must make that up on the pieces before it, and a long line leaves them none. The knots' own
+    # shift (the mean heading error of the pieces around them) is judged like any piece's: it does not shrink
+    # when the line is split, so a line that carried it at a share of the budget could never fit
+    missed_turn = 0.5 * (lever[curve] + h) * np.abs(knot_b - knot) / _FLAT_LINE_SHARE
+    deviation = np.where(nearly_flat, np.maximum(deviation, missed_turn), deviation)
     return (sa, start.real, start.imag, _wrap(heading), curvature, h), deviation, closed
 
 
