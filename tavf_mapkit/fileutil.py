@@ -8,9 +8,10 @@ stays exactly as it was until the new one is complete.
 
 A folder is put in place in one step where the kernel can (renameat2 RENAME_EXCHANGE: the old folder and the
 new one trade names), otherwise the old one is renamed aside first; SIGINT and SIGTERM wait until the names are
-settled. The previous folder is removed afterwards. Staging folders are named ``.NAME.staging-XXXX`` beside the
-target, so a writer that holds a lock on the target can find and clear what a killed one left
-(``StagedFolder.recover``).
+settled. The previous folder is removed afterwards. While a folder is staged, SIGTERM is raised as ``Terminated``
+(a KeyboardInterrupt, in the main thread), so that a killed command cleans up as after Ctrl-C instead of leaving
+its staging folder behind. Staging folders are named ``.NAME.staging-XXXX`` beside the target, so a writer that
+holds a lock on the target can find and clear what a SIGKILLed one left (``StagedFolder.recover``).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import os
 import shutil
 import signal
 import tempfile
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -70,6 +72,11 @@ def staged_file(path: str | Path, suffix: str = "") -> Iterator[Path]:
 
 # -- folders ----------------------------------------------------------------------------------------------------
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM while a folder is staged, raised like Ctrl-C so the same cleanup runs."""
+
+
+
 class StagedFolder:
     """``with StagedFolder(target) as staged: ...write into staged.staging...; staged.commit()``.
 
@@ -87,6 +94,7 @@ class StagedFolder:
         self.what = what
         self.staging: Path | None = None
         self.committed = False
+        self._previous_sigterm = None
 
     def check(self) -> None:
         """Refuse a target that must not be replaced, or that cannot be a folder (a file on its path)."""
@@ -111,6 +119,7 @@ class StagedFolder:
             self.staging.chmod(0o777 & ~_umask())  # mkdtemp makes it private; an output folder is not
         except OSError as error:
             raise InputError(f"cannot write {self.what}: {error.strerror}", file=str(self.target)) from None
+        self._catch_sigterm()
         return self
 
     def commit(self) -> Path:
@@ -130,13 +139,31 @@ class StagedFolder:
             raise StageError(f"cannot move {self.what} into place: {error.strerror}", file=str(self.target)) from None
         finally:
             signal.pthread_sigmask(signal.SIG_SETMASK, previous_mask)
+        self._restore_sigterm()
         if old is not None:
             shutil.rmtree(old, ignore_errors=True)
         return self.target
 
     def discard(self) -> None:
-        if not self.committed and self.staging is not None:
-            shutil.rmtree(self.staging, ignore_errors=True)
+        try:
+            if not self.committed and self.staging is not None:
+                shutil.rmtree(self.staging, ignore_errors=True)
+        finally:
+            self._restore_sigterm()
+
+    def _catch_sigterm(self) -> None:
+        if threading.current_thread() is not threading.main_thread():
+            return  # only the main thread may set handlers (and only it would receive the exception)
+
+        def terminate(signum, frame):
+            raise Terminated(f"signal {signum}")
+
+        self._previous_sigterm = signal.signal(signal.SIGTERM, terminate)
+
+    def _restore_sigterm(self) -> None:
+        if self._previous_sigterm is not None:
+            signal.signal(signal.SIGTERM, self._previous_sigterm)
+            self._previous_sigterm = None
 
     def recover(self) -> list[str]:
         """Clear what writers killed outright (SIGKILL, out of memory) left beside the target: a previous folder

@@ -4,13 +4,15 @@ the collision world and twin drive outputs, and the staged file behind single-fi
 from __future__ import annotations
 
 import os
+import signal
 import threading
+import time
 from pathlib import Path
 
 import pytest
 
 from tavf_mapkit.errors import InputError
-from tavf_mapkit.fileutil import StagedFolder, staged_file, staged_folder
+from tavf_mapkit.fileutil import StagedFolder, Terminated, staged_file, staged_folder
 
 
 def tree(folder: Path) -> dict[str, bytes]:
@@ -47,6 +49,24 @@ def test_a_failure_leaves_the_previous_folder_as_it_was(tmp_path, failure):
         (staging / "done").write_text("half")
         raise failure
     assert tree(target) == {"done": b"previous"} and leftovers(tmp_path) == []
+
+
+def test_sigterm_while_staged_cleans_up_like_ctrl_c_and_restores_the_handler(tmp_path):
+    """A command killed with SIGTERM (a scheduler, `timeout`, systemd) leaves the previous folder and nothing
+    else; outside a staged folder SIGTERM is the caller's again."""
+    target = tmp_path / "out"
+    target.mkdir()
+    (target / "done").write_text("previous")
+    before = signal.getsignal(signal.SIGTERM)
+    with pytest.raises(Terminated), staged_folder(target, marker="done") as staging:
+        (staging / "done").write_text("half")
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(5)  # the handler raises at the next bytecode; never reached
+    assert tree(target) == {"done": b"previous"} and leftovers(tmp_path) == []
+    assert signal.getsignal(signal.SIGTERM) is before
+    with staged_folder(target, marker="done") as staging:
+        (staging / "done").write_text("new")
+    assert signal.getsignal(signal.SIGTERM) is before and tree(target) == {"done": b"new"}
 
 
 def test_folders_that_are_not_ours_are_refused_in_one_line(tmp_path):

@@ -16,9 +16,7 @@ from __future__ import annotations
 import fcntl
 import json
 import os
-import signal
 import socket
-import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -27,10 +25,6 @@ from typing import Self
 from tavf_mapkit.errors import InputError, StageError
 from tavf_mapkit.fileutil import StagedFolder
 from tavf_mapkit.pipeline.manifest import MANIFEST_NAME
-
-
-class BuildInterrupted(KeyboardInterrupt):
-    """SIGTERM during a build, raised like Ctrl-C so the same cleanup runs."""
 
 
 class BuildFolder:
@@ -45,7 +39,6 @@ class BuildFolder:
         self.parent = self.target.parent
         self._notify = notify or (lambda line: None)  # one line for the user (recovery from a killed build)
         self._lock_handle = None
-        self._previous_sigterm = None
 
     @property
     def staging(self) -> Path | None:
@@ -78,14 +71,12 @@ class BuildFolder:
         except BaseException:
             self._unlock()
             raise
-        self._catch_sigterm()
-        return self
+        return self  # SIGTERM is now raised like Ctrl-C (StagedFolder), so __exit__ cleans up
 
     def __exit__(self, exc_type, exc, traceback) -> None:
         try:
             self._staged.discard()
         finally:
-            self._restore_sigterm()
             self._unlock()
 
     def commit(self) -> None:
@@ -145,20 +136,6 @@ class BuildFolder:
             return
         self._notify(f"note: recovered from an earlier build of {self.target} that was killed"
                      f"{_describe(killed)}: {'; '.join(done) or 'nothing was left to clean up'}")
-
-    def _catch_sigterm(self) -> None:
-        if threading.current_thread() is not threading.main_thread():
-            return
-
-        def interrupt(signum, frame):
-            raise BuildInterrupted(f"signal {signum}")
-
-        self._previous_sigterm = signal.signal(signal.SIGTERM, interrupt)
-
-    def _restore_sigterm(self) -> None:
-        if self._previous_sigterm is not None:
-            signal.signal(signal.SIGTERM, self._previous_sigterm)
-            self._previous_sigterm = None
 
 
 def _read_record(handle) -> dict | None:
