@@ -10,7 +10,6 @@ comes first, whether there is a road) is kept in a small Outline.
 
 from __future__ import annotations
 
-import io
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
@@ -71,9 +70,13 @@ def document_parts(source: XmlSource, elements_per_part: int | None = None) -> I
     A document that is not well-formed raises the InputError of ``xmlsafe.parse_safe`` (the incremental parser
     words some faults differently), after the parts before the fault.
     """
-    limit = elements_per_part or ELEMENTS_PER_PART
+    with source.stream() as document:  # the file is read as the parts are asked for, never whole
+        yield from _parts(source, document, elements_per_part or ELEMENTS_PER_PART)
+
+
+def _parts(source: XmlSource, document, limit: int) -> Iterator[DocumentPart]:
     outline = Outline()
-    stream = etree.iterparse(io.BytesIO(source.data), events=("end",), resolve_entities=False, no_network=True,
+    stream = etree.iterparse(document, events=("end",), resolve_entities=False, no_network=True,
                              load_dtd=False, dtd_validation=False, huge_tree=True, remove_comments=False)
     root = None  # the document's root as the parser builds it
     strip = False
