@@ -14,6 +14,12 @@ import gc
 
 def return_freed_memory() -> None:
     gc.collect()
+    trim_heap()
+
+
+def trim_heap() -> None:
+    """Only the glibc ``malloc_trim``, no garbage collection (which walks every object: seconds on a city's map):
+    for a loop that frees large arrays as it fills new ones, so the freed and the new are never resident together."""
     try:
         ctypes.CDLL("libc.so.6").malloc_trim(0)
     except (OSError, AttributeError):

@@ -12,7 +12,8 @@ import numpy as np
 
 from tavf_mapkit.opendrive.budget import SampleBudget
 from tavf_mapkit.opendrive.cubic import CubicProfile
-from tavf_mapkit.opendrive.geometry import GEOMETRY_COLUMNS, GeometryTable
+from tavf_mapkit.opendrive.geometry import GeometryTable, group_keys
+from tavf_mapkit.opendrive.refline import gather_rows
 
 
 @dataclass(frozen=True, eq=False)
@@ -31,7 +32,7 @@ class RecordTable:
         group + s0/span would merge records closer than the key's resolution, as GeometryTable.locate notes)."""
         keys = self.__dict__.get("_keys")
         if keys is None:
-            keys = self.group + 1j * self.s0
+            keys = group_keys(self.group, self.s0)
             object.__setattr__(self, "_keys", keys)
         return keys
 
@@ -115,10 +116,8 @@ class NetworkArrays:
         lengths = np.array([road.length for road in roads], dtype=float)
         span = float(max(lengths.max(initial=0.0), 1.0) * 2.0 + 10.0)
         counts = np.array([len(road.reference_line) for road in roads], dtype=np.int64)
-        rows = (np.concatenate([road.reference_line.rows for road in roads]) if roads
-                else np.zeros((0, GEOMETRY_COLUMNS)))
-        for road, start, end in zip(roads, np.cumsum(counts) - counts, np.cumsum(counts)):
-            road.reference_line.share_rows(rows[start:end])
+        # one table the roads' reference lines then hold views of (never two copies of a city's 5 million rows)
+        rows = gather_rows(road.reference_line for road in roads)
         table = GeometryTable.from_rows(rows, np.repeat(np.arange(len(roads), dtype=np.int64), counts))
         section_road, section_s0, section_end = [], [], []
         lane_section, lane_id, lane_rank, lane_border_flag, lane_type, widths, borders = [], [], [], [], [], [], []

@@ -123,7 +123,7 @@ class GeometryTable:
             return np.zeros(len(s), dtype=np.int64), np.zeros(len(s), dtype=bool)
         keys = self.__dict__.get("_keys")
         if keys is None:
-            keys = self.group + 1j * self.s
+            keys = group_keys(self.group, self.s)
             object.__setattr__(self, "_keys", keys)
         index = np.searchsorted(keys, group + 1j * s, side="right") - 1
         first = np.searchsorted(self.group, group, side="left")
@@ -151,6 +151,15 @@ class GeometryTable:
             hdg[mask] = self.hdg[g] + theta
             curvature[mask] = k
         return x, y, hdg, curvature
+
+
+def group_keys(group: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """group + i*s of a table's (finite) starts, written in place: ``group + 1j * s`` makes two complex
+    temporaries as large (a city's 5 million geometries: 160 MB for a 80 MB table)."""
+    keys = np.empty(len(s), dtype=complex)
+    keys.real = group
+    keys.imag = s
+    return keys
 
 
 # Each local kernel returns (u, v, heading change, curvature) in the geometry's own frame.

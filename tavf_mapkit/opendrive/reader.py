@@ -21,7 +21,7 @@ from tavf_mapkit.opendrive.lane import Lane, LaneHeight, LaneRecord, RoadMark, R
 from tavf_mapkit.opendrive.lanesection import LaneSection
 from tavf_mapkit.opendrive.network import OpenDriveMap
 from tavf_mapkit.opendrive.objects import ObjectRepeat, Outline, OutlineCorner, RoadObject, Signal, SignalReference
-from tavf_mapkit.opendrive.refline import ReferenceLine
+from tavf_mapkit.opendrive.refline import ReferenceLine, RowPacker
 from tavf_mapkit.opendrive.road import Road, RoadLink, RoadType, ShapeRecord
 from tavf_mapkit.opendrive.units import speed_to_mps
 from tavf_mapkit.xmlsafe import XmlSource, iterparse_safe, prepare_xml_bytes, read_xml_source
@@ -115,6 +115,7 @@ class _Reader:
         self.warnings: list[Diagnostic] = []
         self.road_id: str | None = None
         self.strings: dict[str, str] = {}
+        self.packer = RowPacker()  # the reference lines' rows in shared arrays, not one small array per road
 
     # -- helpers ---------------------------------------------------------------------------------------------
     def word(self, element, name: str, default: str | None = None) -> str | None:
@@ -226,6 +227,7 @@ class _Reader:
                 if isinstance(previous.tag, str) and _local(previous.tag) not in handlers:
                     extras.append(_verbatim(previous))
                 del parent[0]
+        self.packer.flush()
         root = root if root is not None else self.source.root
         if root is None:
             raise InputError("empty document, expected <OpenDRIVE>", file=self.source.name)
@@ -287,6 +289,7 @@ class _Reader:
         types = tuple(self.road_type(t) for t in self.children(element, "type"))
         plan_view = self.child(element, "planView")
         reference_line = self.plan_view(plan_view) if plan_view is not None else ReferenceLine()
+        self.packer.add(reference_line)
         if plan_view is None:
             self.warn("road has no <planView>", element)
         elevation = superelevation = lane_offset = None
