@@ -10,6 +10,12 @@ LocalCluster of as many workers, so all twins drive at once against the same ser
 request latency (fix sent -> answer parsed) of every successful query, pooled over the runs from their
 udm_latency.csv; the ratio is the fleet's p95 over the lone twin's. The overlap column is the sum of the runs'
 wall times over the sweep's: near the number of twins when they really drove at the same time.
+
+Where the latency goes: every query's row has the server's own time (its Server-Timing header: request reached
+the app -> answer ready) and the client's wait for a core during the request (schedstat); the rest is the
+network, uvicorn's HTTP parsing, the client's own CPU and the server's wait for a core. While the sweep runs,
+the server process's CPU and run-queue wait (/proc/PID/schedstat) and the machine's CPU use and runnable tasks
+(/proc/stat) are sampled, and reported per request and for the window in which every twin drives.
 """
 
 from __future__ import annotations
@@ -21,8 +27,10 @@ import os
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
+from typing import Self
 
 import numpy as np
 
@@ -37,20 +45,94 @@ BIN = Path(sys.executable).parent
 TARGET = 1.2
 
 
-def sweep(build: Path, url: str, twins: int, duration: float, out: Path) -> dict:
+class Sampler:
+    """Samples, every ``interval_s`` on a thread, the server process's CPU and run-queue wait (schedstat, summed
+    over its threads) and the machine's busy CPU seconds and runnable tasks (/proc/stat), against
+    time.monotonic, so a window of the sweep can be cut out afterwards."""
+
+    def __init__(self, pid: int, interval_s: float = 0.25) -> None:
+        self.pid, self.interval_s = pid, interval_s
+        self.samples: list[tuple[float, float, float, float, int]] = []  # t, server cpu, server wait, busy, runnable
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def __enter__(self) -> Self:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self._stop.set()
+        self._thread.join()
+
+    def _run(self) -> None:
+        while True:
+            self.samples.append((time.monotonic(), *self.server(), *machine()))
+            if self._stop.wait(self.interval_s):
+                return
+
+    def server(self) -> tuple[float, float]:
+        cpu = wait = 0
+        for task in Path(f"/proc/{self.pid}/task").iterdir():
+            try:
+                fields = (task / "schedstat").read_text().split()
+            except OSError:  # a thread that just ended
+                continue
+            cpu, wait = cpu + int(fields[0]), wait + int(fields[1])
+        return cpu / 1e9, wait / 1e9
+
+    def between(self, start: float, end: float) -> dict | None:
+        """Server CPU and wait seconds, machine busy cores and mean runnable tasks from ``start`` to ``end``."""
+        inside = [sample for sample in self.samples if start <= sample[0] <= end]
+        if len(inside) < 2:
+            return None
+        first, last = inside[0], inside[-1]
+        span = last[0] - first[0]
+        return {"s": span, "server_cpu_s": last[1] - first[1], "server_wait_s": last[2] - first[2],
+                "busy_cores": (last[3] - first[3]) / span,
+                "runnable": float(np.mean([sample[4] for sample in inside]))}
+
+
+def machine() -> tuple[float, int]:
+    """Busy CPU seconds of the whole machine since boot (all but idle and iowait) and the runnable tasks now."""
+    busy, runnable = 0.0, 0
+    for line in Path("/proc/stat").read_text().splitlines():
+        fields = line.split()
+        if fields[0] == "cpu":
+            ticks = [int(value) for value in fields[1:]]
+            busy = (sum(ticks[:8]) - ticks[3] - ticks[4]) / os.sysconf("SC_CLK_TCK")
+        elif fields[0] == "procs_running":
+            runnable = int(fields[1])
+    return busy, runnable
+
+
+def percentiles(values: list[float]) -> dict | None:
+    if not values:
+        return None
+    return {"p50_ms": float(np.percentile(values, 50)), "p95_ms": float(np.percentile(values, 95))}
+
+
+def sweep(build: Path, url: str, twins: int, duration: float, out: Path, server_pid: int) -> dict:
     command = [str(BIN / "twin"), "sweep", "--map", str(build), "--seeds", f"0-{twins - 1}", "--duration",
                str(duration), "--udm", url, "-o", str(out), "-q"]
     if twins > 1:
         command += ["--workers", str(twins)]
     started = time.perf_counter()
-    subprocess.run(command, check=True, capture_output=True)
+    with Sampler(server_pid) as sampler:
+        subprocess.run(command, check=True, capture_output=True)
     wall = time.perf_counter() - started
-    sent, latency, spans = [], [], []
+    sent, latency, spans, server_ms, wait_ms, rest_ms, all_sent = [], [], [], [], [], [], []
     for path in sorted((out / "runs").glob("seed-*/udm_latency.csv")):
         with path.open() as handle:
-            rows = [row for row in csv.DictReader(handle) if row["status"] == "ok" and row["client_latency_s"]]
+            every = list(csv.DictReader(handle))
+        all_sent += [float(row["t_sent"]) for row in every if row["t_sent"]]
+        rows = [row for row in every if row["status"] == "ok" and row["client_latency_s"]]
         sent += [float(row["t_sent"]) for row in rows]
         latency += [float(row["client_latency_s"]) * 1000 for row in rows]
+        for row in rows:
+            known = row.get("server_s") and row.get("client_wait_s")
+            server_ms.append(float(row["server_s"]) * 1000 if known else np.nan)
+            wait_ms.append(float(row["client_wait_s"]) * 1000 if known else np.nan)
+            rest_ms.append(latency[len(server_ms) - 1] - server_ms[-1] - wait_ms[-1] if known else np.nan)
         if rows:
             spans.append((float(rows[0]["t_sent"]), float(rows[-1]["t_sent"])))
     report = json.loads((out / "sweep.json").read_text())
@@ -59,8 +141,21 @@ def sweep(build: Path, url: str, twins: int, duration: float, out: Path) -> dict
     # while every twin drives (time.monotonic is one clock for all processes of the machine): after the last
     # one's first query, before the first one's last; the twins' start-up (map loading) lies outside
     start, end = max(span[0] for span in spans), min(span[1] for span in spans)
-    steady = values[(sent >= start) & (sent <= end)]
-    return {"twins": twins, "wall_s": wall, "queries": len(values),
+    inside = (sent >= start) & (sent <= end)
+    steady = values[inside]
+    parts = {}
+    for name, series in (("request", values), ("server", np.asarray(server_ms)), ("client_wait", np.asarray(wait_ms)),
+                         ("rest", np.asarray(rest_ms))):
+        part = series[inside] if twins > 1 else series  # a lone twin: its whole run
+        parts[name] = percentiles([value for value in part if np.isfinite(value)])
+    window = sampler.between(start, end) if twins > 1 else sampler.between(spans[0][0], spans[0][1])
+    if window:
+        served = sum(1 for t in all_sent if (start if twins > 1 else spans[0][0]) <= t
+                     <= (end if twins > 1 else spans[0][1]))
+        window["requests"] = served
+        window["server_cpu_ms_per_request"] = 1000 * window["server_cpu_s"] / max(1, served)
+        window["server_wait_ms_per_request"] = 1000 * window["server_wait_s"] / max(1, served)
+    return {"twins": twins, "wall_s": wall, "queries": len(values), "parts": parts, "window": window,
             "p50_ms": float(np.percentile(values, 50)), "p95_ms": float(np.percentile(values, 95)),
             "p99_ms": float(np.percentile(values, 99)),
             "all_driving_s": max(0.0, end - start), "all_driving_queries": len(steady),
@@ -68,6 +163,31 @@ def sweep(build: Path, url: str, twins: int, duration: float, out: Path) -> dict
             "overlap": sum(run["wall_s"] for run in runs) / wall,
             "ok": report["summary"]["ok"], "errors": sum(run["udm_errors"] or 0 for run in runs),
             "rtf": [run["real_time_factor"] for run in runs]}
+
+
+def print_breakdown(alone: dict, fleet: dict) -> None:
+    """Where the latency goes, the lone twin's whole run against the fleet's window in which all drive."""
+    def cell(row: dict, name: str) -> str:
+        part = row["parts"].get(name)
+        return f"{part['p50_ms']:>7.2f} {part['p95_ms']:>7.2f}" if part else f"{'-':>7} {'-':>7}"
+
+    print(f"\n{'where the request latency goes (ms)':<58} {'1 twin p50':>10} {'p95':>5}  "
+          f"{fleet['twins']} twins p50     p95")
+    labels = {"request": "request: fix sent -> answer parsed (the metric)",
+              "server": "server-side: request in the app -> answer (Server-Timing)",
+              "client_wait": "client process waiting for a core (schedstat)",
+              "rest": "rest: network, uvicorn, client CPU, server waiting"}
+    for name, label in labels.items():
+        print(f"{label:<58} {cell(alone, name)}  {cell(fleet, name)}")
+    print(f"{'(percentiles of each part taken alone: the parts do not add up)':<58}")
+    for row in (alone, fleet):
+        window = row["window"]
+        if not window:
+            continue
+        print(f"{row['twins']:>3} twin(s), {window['s']:.0f} s: server process {window['server_cpu_ms_per_request']:.2f} ms "
+              f"CPU and {window['server_wait_ms_per_request']:.2f} ms waiting for a core per request "
+              f"({window['requests']} requests); machine {window['busy_cores']:.2f} of {os.cpu_count()} cores busy, "
+              f"{window['runnable']:.1f} tasks runnable on average")
 
 
 def main() -> int:
@@ -86,8 +206,8 @@ def main() -> int:
                            capture_output=True)
         server, url = start_server(build)
         try:
-            alone = sweep(build, url, 1, args.duration, scratch / "alone")
-            fleet = sweep(build, url, args.twins, args.duration, scratch / "fleet")
+            alone = sweep(build, url, 1, args.duration, scratch / "alone", server.pid)
+            fleet = sweep(build, url, args.twins, args.duration, scratch / "fleet", server.pid)
         finally:
             server.terminate()
             server.wait(10)
@@ -104,6 +224,7 @@ def main() -> int:
     print(f"\np95 of {args.twins} twins at once / one twin alone: {ratio:.2f}x over the whole sweep, "
           + (f"{steady / alone['p95_ms']:.2f}x while all drive" if steady else "never all driving at once")
           + f" (target <= {TARGET}x) {verdict}")
+    print_breakdown(alone, fleet)
     print("load average after:", " ".join(Path("/proc/loadavg").read_text().split()[:3]))
     print(json.dumps({"alone": alone, "fleet": fleet, "ratio_p95": ratio}, indent=1))
     return 0

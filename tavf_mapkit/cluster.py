@@ -5,7 +5,10 @@ Nothing here imports Dask at module level: without ``--workers``/``--scheduler``
 (tests/test_distributed_build.py checks it), and the single-process paths stay exactly as they are.
 
 - ``connect(workers=N)`` starts a LocalCluster of N processes with one thread each (our stages are numpy and
-  Python code that holds the GIL; libsumo allows one simulation per process); ``connect(scheduler=ADDR)`` joins
+  Python code that holds the GIL; libsumo allows one simulation per process). With ``waiting_tasks`` (``twin
+  sweep``, whose tasks only wait on a ``twin drive`` process of their own) the N task slots are threads of at
+  most one process per core, and the workers' sampling profiler and fast health ticks are off (see
+  ``WAITING_TASKS_CONFIG``); ``connect(scheduler=ADDR)`` joins
   a running scheduler (a laptop, SSH hosts, Slurm via dask-jobqueue, Kubernetes via dask-kubernetes), waiting
   at most ``CONNECT_TIMEOUT`` seconds for it and for its first worker, so a wrong address is one line, not a hang.
 - ``Fanout.map`` runs a top-level function over argument tuples and yields the results in order, with a bounded
@@ -32,6 +35,18 @@ CONNECT_TIMEOUT = float(os.environ.get("TAVF_CONNECT_TIMEOUT", "10"))
 TASKS_PER_WORKER = 3     # tasks in flight per worker: enough to keep each busy while the client takes results
 INSTALL_HINT = "pip install 'tavf-mapkit[distributed]'"
 
+# Workers whose tasks only wait (on a child process) have nothing to profile or watch closely. Dask's defaults
+# wake every worker ~150 times a second (a stack sample every 10 ms, an event-loop tick every 20 ms, a memory
+# check every 100 ms): an idle LocalCluster of 20 such workers took 0.41 of this 2-core machine's cores, and
+# during a sweep of 20 twins at real time a dozen of its threads were runnable at any moment, each wake-up
+# delaying the twins and their UDM requests. With this: 0.06 cores for 20 workers, 0.013 for 2 x 10 threads.
+WAITING_TASKS_CONFIG = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.tick.interval": "1s",
+    "distributed.admin.system-monitor.interval": "5s",
+    "distributed.worker.memory.monitor-interval": "2s",
+}
+
 
 def check_cluster_options(workers: int | None, scheduler: str | None) -> None:
     """--workers and --scheduler exclude each other; N >= 1; an address looks like tcp://HOST:PORT."""
@@ -50,9 +65,10 @@ def wants_cluster(workers: int | None, scheduler: str | None) -> bool:
 
 @contextmanager
 def connect(workers: int | None = None, scheduler: str | None = None,
-            timeout: float | None = None) -> Iterator[Fanout]:
+            timeout: float | None = None, waiting_tasks: bool = False) -> Iterator[Fanout]:
     """A Fanout on a LocalCluster of ``workers`` processes, or on the scheduler at ``scheduler``; closed (and the
-    local cluster stopped) when the block ends."""
+    local cluster stopped) when the block ends. ``waiting_tasks``: the tasks wait on processes of their own
+    (a sweep's drives), so ``workers`` slots are threads of ``local_processes(workers)`` quiet processes."""
     check_cluster_options(workers, scheduler)
     timeout = CONNECT_TIMEOUT if timeout is None else timeout
     try:
@@ -70,8 +86,10 @@ def connect(workers: int | None = None, scheduler: str | None = None,
             _check_address(scheduler)
             client = Client(scheduler, timeout=timeout, set_as_default=False)
         else:
-            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                   dashboard_address=None, silence_logs=logging.ERROR)
+            processes = local_processes(workers) if waiting_tasks else workers
+            with dask.config.set(WAITING_TASKS_CONFIG if waiting_tasks else {}):  # copied into each worker
+                cluster = LocalCluster(n_workers=processes, threads_per_worker=-(-workers // processes),
+                                       processes=True, dashboard_address=None, silence_logs=logging.ERROR)
             client = Client(cluster, set_as_default=False)
     except (OSError, TimeoutError) as error:
         if cluster is not None:
@@ -89,6 +107,12 @@ def connect(workers: int | None = None, scheduler: str | None = None,
         client.close()
         if cluster is not None:
             cluster.close()
+
+
+def local_processes(slots: int) -> int:
+    """Worker processes for ``slots`` tasks that only wait: one per core at most (a process per slot would only
+    add processes that compete with the tasks' own for the cores), and at least one."""
+    return max(1, min(slots, os.cpu_count() or 1))
 
 
 def _check_address(address: str) -> None:

@@ -156,3 +156,20 @@ def test_scheduler_address_of_unknown_scheme_is_one_line(tmp_path):
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1, done.stderr  # the known schemes it lists depend on the installed Dask
     assert lines[0].startswith("Error: --scheduler foo://127.0.0.1:1: unknown address scheme 'foo' (known schemes: ")
+
+
+def test_waiting_tasks_share_few_quiet_processes():
+    """twin sweep's tasks only wait on their own drive process: 3 slots are threads of at most one process per
+    core, whose workers do not profile (a profiler wakes each worker every 10 ms)."""
+    import dask
+
+    from tavf_mapkit.cluster import connect, local_processes
+
+    assert local_processes(20) == min(20, os.cpu_count()) and local_processes(1) == 1
+    with connect(workers=3, waiting_tasks=True) as fanout:
+        info = fanout.client.scheduler_info(n_workers=-1)["workers"]
+        assert len(info) == local_processes(3)
+        assert sum(worker["nthreads"] for worker in info.values()) >= 3
+        profiling = fanout.client.run(lambda: dask.config.get("distributed.worker.profile.enabled"))
+        assert set(profiling.values()) == {False}
+    assert dask.config.get("distributed.worker.profile.enabled") is True  # this process's config is untouched

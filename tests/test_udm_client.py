@@ -23,6 +23,8 @@ from twin.udm.client import (
     UNREACHABLE,
     LatencyLog,
     UdmClient,
+    run_queue_wait_s,
+    server_timing_s,
 )
 from twin.udm.loadgen import LoadPlan, is_loopback_url, run_load
 from twin.udm.model import UdmObject, square_around
@@ -87,6 +89,40 @@ def test_answers_match_the_store_and_carry_both_latencies(udm, tmp_path):
     assert rows[0]["frame"] == "7" and rows[0]["status"] == "ok"
     assert int(rows[0]["n_objects"]) == len(expected)
     assert math.isclose(float(rows[0]["client_latency_s"]), response.client_latency_s, abs_tol=1e-6)
+    assert math.isclose(float(rows[0]["server_s"]), response.server_s, abs_tol=1e-6)
+
+
+def test_latency_is_split_into_the_servers_time_and_the_clients_wait(udm):
+    url, _ = udm
+    with UdmClient(url) as client:
+        for frame in range(5):
+            client.submit(*HAMBURG, side_m=200.0, frame=frame)
+        responses = wait_for(client, 5)
+    assert [response.status for response in responses] == [OK] * 5
+    for response in responses:
+        # the server's own time (its Server-Timing) is a part of what the client measured around the request
+        assert 0 < response.server_s < response.client_latency_s
+        assert response.wait_s is not None and response.wait_s >= 0  # Linux reports the run-queue wait
+
+
+def test_server_timing_header_parsing():
+    assert server_timing_s("app;dur=0.412") == pytest.approx(0.000412)
+    assert server_timing_s("db;dur=3, app;desc=\"handler\";dur=2.5") == pytest.approx(0.0025)
+    assert server_timing_s("") is None
+    assert server_timing_s("db;dur=3") is None  # no entry of ours
+    assert server_timing_s("app;dur=fast") is None
+    assert server_timing_s("app;dur=-1") is None
+    assert server_timing_s("app;dur=nan") is None
+
+
+def test_run_queue_wait_only_grows():
+    first = run_queue_wait_s()
+    deadline = time.perf_counter() + 0.05
+    while time.perf_counter() < deadline:  # be runnable for a while
+        pass
+    second = run_queue_wait_s()
+    assert first is not None and second is not None  # Linux keeps schedstat for every thread
+    assert 0 <= first <= second
 
 
 def test_layer_and_type_filters_reach_the_server(udm):

@@ -262,6 +262,18 @@ def test_health_openapi_and_json_errors(udm):
     assert http.put("/objects").status_code == 405
 
 
+def test_every_answer_says_the_servers_own_time(fleet):
+    http, _ = fleet
+    for query in ({"bbox": "9.9,53.5,10.1,53.6"}, {"bbox": "oops"}):
+        started = time.perf_counter()
+        reply = http.get("/objects", params=query)
+        round_trip_ms = (time.perf_counter() - started) * 1000.0
+        name, _, duration = reply.headers["server-timing"].partition(";dur=")
+        assert name == "app"
+        assert 0 < float(duration) < round_trip_ms  # inside the app: a part of what the client waited for
+    assert reply.status_code == 400  # refusals are timed too
+
+
 def test_oversized_body_gets_413(udm):
     http, _, _ = udm
     huge = b'{"type": "FeatureCollection", "features": [' + b" " * (17 * 1024 * 1024) + b"]}"

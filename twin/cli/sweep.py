@@ -27,7 +27,8 @@ from tavf_mapkit.errors import StageError
 @click.option("--pace", type=click.FloatRange(min=0.01), default=None,
               help="Times real time each run may go at most. Default: 1 (real time) with --udm, else unpaced.")
 @click.option("--workers", type=click.IntRange(min=1), default=None, metavar="N",
-              help="Runs on a local Dask cluster of N processes at once (1: one after another, no Dask).")
+              help="N runs at once on a local Dask cluster (1: one after another, no Dask). Each run is a `twin "
+                   "drive` process of its own; the cluster holds them in N threads of at most one process per core.")
 @click.option("--scheduler", default=None, metavar="tcp://HOST:PORT",
               help="Runs on the workers of a running Dask scheduler (the build is sent to them; docs/distributed.md).")
 @click.option("--timeout", "deadline", type=click.FloatRange(min=1), default=None, metavar="S",
@@ -79,15 +80,16 @@ def sweep(map_dir: Path, seeds: str, duration: float, traffic: int, udm: str | N
 
     with ExitStack() as stack:
         if wants_cluster(workers, scheduler):
-            from tavf_mapkit.cluster import FileFanout, connect
+            from tavf_mapkit.cluster import FileFanout, connect, local_processes
             from twin.sweep.runs import drive_task, pack_build
 
-            fanout = stack.enter_context(connect(workers=workers, scheduler=scheduler))
+            # a run's task only waits on its `twin drive`: threads of a few quiet processes hold them all
+            fanout = stack.enter_context(connect(workers=workers, scheduler=scheduler, waiting_tasks=True))
             digest, future = fanout.share(pack_build(build.path))
             runs = FileFanout(fanout, digest, future, build.path.name).map(
                 drive_task, ((seed, options, deadline) for seed in seed_list),
                 window=len(seed_list))  # runs are long: all queued, the scheduler balances them
-            where = scheduler or f"{workers} local workers"
+            where = scheduler or f"{workers} local workers ({workers} threads in {local_processes(workers)} processes)"
         else:
             runs = (drive_once(build.path.resolve(), seed, options, deadline) for seed in seed_list)
             where = "this machine, one run at a time"

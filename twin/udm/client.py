@@ -9,6 +9,10 @@ Two latencies are kept per query, both from ``time.monotonic``:
 - client latency: first request sent -> response parsed (what the network and server cost);
 - loop latency: the frame published its fix -> the answer is available to ``poll()`` (what the car sees,
   queueing and retries included).
+
+And two parts of the client latency, to tell where it goes: the server's own time (its ``Server-Timing`` header:
+request reached the app -> answer ready) and how long this thread waited for a core during the request (Linux
+schedstat; on a busy machine that wait, not the network, is most of a loopback request).
 """
 
 from __future__ import annotations
@@ -64,6 +68,8 @@ class UdmResponse:
     attempts: int = 0
     http_status: int | None = None
     error: str = ""
+    server_s: float | None = None  # the server's own time for the last attempt (Server-Timing), if it said
+    wait_s: float | None = None  # the client thread's wait for a core while the request ran (Linux only)
 
     @property
     def ok(self) -> bool:
@@ -243,35 +249,40 @@ class UdmClient:
 
     def _fetch(self, http: httpx.Client, query: UdmQuery) -> UdmResponse:
         params = {"bbox": square_around(query.lat, query.lon, query.side_m).as_param(), **self._filters}
+        waited = run_queue_wait_s()  # read outside the timed span, so reading it costs the latency nothing
         t_sent = time.monotonic()
         attempt = 0
         while True:
             attempt += 1
             self._count("requests")
-            status, objects, http_status, error = self._attempt(http, params)
+            status, objects, http_status, error, server_s = self._attempt(http, params)
             if status not in RETRYABLE or attempt > self.max_retries or self._stopping.is_set():
                 break
             self._count("retries")
             backoff = min(self.max_backoff_s, self.backoff_s * 2 ** (attempt - 1))
             if self._stopping.wait(backoff):
                 break
-        return UdmResponse(query.frame, query.t_publish, t_sent, time.monotonic(), status, objects, attempt,
-                           http_status, error)
+        t_received = time.monotonic()
+        waited_after = run_queue_wait_s()
+        wait_s = None if waited is None or waited_after is None else waited_after - waited
+        return UdmResponse(query.frame, query.t_publish, t_sent, t_received, status, objects, attempt,
+                           http_status, error, server_s, wait_s)
 
     def _attempt(self, http: httpx.Client, params: dict[str, str]
-                 ) -> tuple[str, tuple[UdmObject, ...], int | None, str]:
+                 ) -> tuple[str, tuple[UdmObject, ...], int | None, str, float | None]:
         try:
             reply = http.get("objects", params=params)
         except httpx.HTTPError as error:
-            return transport_status(error), (), None, describe(error)
+            return transport_status(error), (), None, describe(error), None
+        server_s = server_timing_s(reply.headers.get("server-timing", ""))
         if reply.status_code >= 500:
-            return HTTP_5XX, (), reply.status_code, reply.text[:200]
+            return HTTP_5XX, (), reply.status_code, reply.text[:200], server_s
         if reply.status_code != 200:
-            return HTTP_4XX, (), reply.status_code, reply.text[:200]
+            return HTTP_4XX, (), reply.status_code, reply.text[:200], server_s
         try:
-            return OK, objects_from_collection(reply.json()), 200, ""
+            return OK, objects_from_collection(reply.json()), 200, "", server_s
         except (ValueError, InvalidObject) as error:  # JSONDecodeError is a ValueError
-            return MALFORMED, (), 200, describe(error)
+            return MALFORMED, (), 200, describe(error), server_s
 
     def count(self, key: str, amount: int = 1) -> None:
         """Add to one of the counters ``stats()`` reports (for owners that queue queries themselves)."""
@@ -302,6 +313,35 @@ def objects_from_collection(document: Any) -> tuple[UdmObject, ...]:
     return tuple(UdmObject.from_feature(feature) for feature in features)
 
 
+def server_timing_s(header: str) -> float | None:
+    """Seconds of the ``app`` entry of a ``Server-Timing`` header (``app;dur=0.412``, in ms); None without one."""
+    for entry in header.split(","):
+        name, _, parameters = entry.partition(";")
+        if name.strip() != "app":
+            continue
+        for parameter in parameters.split(";"):
+            key, _, value = parameter.partition("=")
+            if key.strip() == "dur":
+                try:
+                    duration = float(value)
+                except ValueError:
+                    return None
+                return duration / 1000.0 if math.isfinite(duration) and duration >= 0 else None
+    return None
+
+
+_SCHEDSTAT = Path("/proc/thread-self/schedstat")
+
+
+def run_queue_wait_s() -> float | None:
+    """Seconds the calling thread has spent runnable but waiting for a core since it started (the second field
+    of Linux's schedstat); None where the kernel does not say."""
+    try:
+        return int(_SCHEDSTAT.read_bytes().split()[1]) / 1e9
+    except (OSError, IndexError, ValueError):
+        return None
+
+
 def transport_status(error: httpx.HTTPError) -> str:
     """Which error count an httpx failure belongs to."""
     if isinstance(error, httpx.TimeoutException):
@@ -319,11 +359,14 @@ class LatencyLog:
     """Writes one ``udm_latency.csv`` row per response; give it a run folder or a file path.
 
     ``step`` and ``t_available`` are filled in by a simulation loop: the step whose end took the answer and
-    the monotonic time it did (``available_latency_s`` = ``t_available - t_publish``).
+    the monotonic time it did (``available_latency_s`` = ``t_available - t_publish``). ``server_s`` is the
+    server's own time (its Server-Timing), ``client_wait_s`` the client's wait for a core during the request;
+    both are parts of ``client_latency_s`` and empty when unknown.
     """
 
     COLUMNS = ("frame", "t_publish", "t_sent", "t_received", "client_latency_s", "loop_latency_s",
-               "status", "n_objects", "error", "step", "t_available", "available_latency_s")
+               "status", "n_objects", "error", "step", "t_available", "available_latency_s", "server_s",
+               "client_wait_s")
 
     def __init__(self, path: str | Path) -> None:
         path = Path(path)
@@ -346,6 +389,8 @@ class LatencyLog:
             "" if step is None else step,
             seconds(t_available),
             seconds(None if t_available is None else t_available - response.t_publish),
+            seconds(response.server_s),
+            seconds(response.wait_s),
         ))
 
     def flush(self) -> None:

@@ -24,6 +24,7 @@ from typing import Any, Self
 import uvicorn
 from starlette.applications import Starlette
 from starlette.exceptions import HTTPException
+from starlette.middleware import Middleware
 from starlette.requests import Request
 from starlette.responses import JSONResponse, Response
 from starlette.routing import Route
@@ -159,9 +160,35 @@ def create_app(store: Store, token: str, *, purge_interval_s: float = DEFAULT_PU
         Route("/objects/{object_id}", delete_object, methods=["DELETE"]),
     ]
     handlers = {ApiError: api_error, HTTPException: http_exception, Exception: internal_error}
-    app = Starlette(routes=routes, exception_handlers=handlers, lifespan=lifespan)
+    app = Starlette(routes=routes, exception_handlers=handlers, lifespan=lifespan,
+                    middleware=[Middleware(ServerTiming)])
     app.state.store = store
     return app
+
+
+class ServerTiming:
+    """Adds ``Server-Timing: app;dur=MS`` to every answer: milliseconds from the request reaching the app to its
+    answer's headers (parameter checks, the store, rendering JSON). What a client measures beyond it is the
+    network, uvicorn's HTTP parsing and the waits of both ends for a core: with it a fleet's latency can be
+    split into the server's own work and everything else (benchmarks/bench_udm_fleet.py). A pure ASGI
+    wrapper, not BaseHTTPMiddleware, which would add a task and a queue per request."""
+
+    def __init__(self, app: Any) -> None:
+        self.app = app
+
+    async def __call__(self, scope: dict, receive: Callable, send: Callable) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        started = time.perf_counter()
+
+        async def send_timed(message: dict) -> None:
+            if message["type"] == "http.response.start":
+                duration = f"app;dur={(time.perf_counter() - started) * 1000.0:.3f}".encode()
+                message = {**message, "headers": [*message.get("headers", ()), (b"server-timing", duration)]}
+            await send(message)
+
+        await self.app(scope, receive, send_timed)
 
 
 async def purge_periodically(store: Store, interval_s: float) -> None:
