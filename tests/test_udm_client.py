@@ -10,12 +10,10 @@ import socket
 import time
 
 import pytest
-from short_slices import kernel_takes_short_slices
 from starlette.applications import Starlette
 from starlette.responses import JSONResponse, Response, StreamingResponse
 from starlette.routing import Route
 
-from twin.sched import SHORT_SLICE_S, slice_s
 from twin.udm.client import (
     HTTP_5XX,
     INVALID_FIX,
@@ -294,8 +292,6 @@ def test_process_client_answers_like_the_thread_client_and_survives_its_child(ud
         assert response.ok and response.frame == 3 and response.t_publish == t_publish
         assert {o.id for o in response.objects} == {o.id for o in store.in_bbox(square_around(*HAMBURG, 200.0))}
         assert t_publish <= response.t_sent <= response.t_received  # one clock across both processes
-        if kernel_takes_short_slices():  # the child asked to be run at once when its answer arrives
-            assert slice_s(client._child.process.pid) == SHORT_SLICE_S
         assert not client.submit(math.nan, 9.99, frame=4)
         assert [r.status for r in client.poll()] == [INVALID_FIX]
         client._child.process.kill()  # the child dies: the caller still never sees an exception

@@ -13,9 +13,7 @@ import httpx
 import numpy as np
 import pytest
 from pyproj import Geod
-from short_slices import kernel_takes_short_slices
 
-from twin.sched import SHORT_SLICE_S, slice_s
 from twin.udm.model import EARTH_RADIUS_M, BBox
 from twin.udm.server import MAX_BBOX_AREA_KM2, ServerThread, create_app
 from twin.udm.store import SqliteRtreeStore
@@ -315,8 +313,6 @@ def test_serve_command_seeds_a_build_and_answers(tmp_path):
                 time.sleep(0.05)
         found = {item["id"]: item["properties"] for item in reply.json()["features"]}
         assert set(found) == {"osm-node-1", "osm-node-2"}
-        if kernel_takes_short_slices():  # the server's event loop asked to run as soon as a request arrives
-            assert slice_s(process.pid) == SHORT_SLICE_S
         assert found["osm-node-2"]["type"] == "traffic_sign" and found["osm-node-2"]["class"] == "DE:205"
         assert all(properties["layer"] == 2 for properties in found.values())
         reply = httpx.post(f"{url}/objects", json=feature("new", *HAMBURG), headers=AUTH, trust_env=False)

@@ -19,7 +19,6 @@ from collections import deque
 from typing import Any, Self
 
 from twin.childproc import ChildProcess, Parent, serve
-from twin.sched import request_short_slices
 from twin.udm.client import INTERNAL, INVALID_FIX, ClientStats, UdmClient, UdmQuery, UdmResponse
 
 
@@ -114,9 +113,6 @@ def _serve(settings: dict[str, Any], parent: Parent) -> None:
     pipe is drained into a bounded queue that keeps the newest ``queue_size`` (the oldest are dropped,
     as in ``UdmClient``).
     """
-    # woken by each answer while the twins and everything else keep the cores busy: short slices let the
-    # kernel run it at once instead of after the slices ahead of it (twin/sched.py)
-    request_short_slices()
     options = dict(settings["options"])
     queue_size = max(1, int(options.pop("queue_size", 8)))
     client = UdmClient(settings["base_url"], start_worker=False, **options)

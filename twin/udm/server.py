@@ -30,7 +30,6 @@ from starlette.responses import JSONResponse, Response
 from starlette.routing import Route
 
 from twin import __version__
-from twin.sched import request_short_slices
 from twin.udm.model import ID_PATTERN, BBox, InvalidObject, Layer, UdmObject, iso_utc, parse_layer
 from twin.udm.store import DEFAULT_LIMIT, Store
 
@@ -524,9 +523,6 @@ def run_server(app: Any, host: str, port: int, *, on_listening: Callable[[str], 
     sock = bind_socket(host, port)
     if on_listening:
         on_listening(url_of(sock))
-    # the event loop wakes per request and answers in under a millisecond: short slices let it run as soon as
-    # a request arrives on busy cores (twin/sched.py); the server's own process, so only its loop is affected
-    request_short_slices()
     uvicorn_server(app, log_level=log_level).run(sockets=[sock])
 
 
