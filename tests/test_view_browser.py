@@ -5,7 +5,8 @@ The page must load without console errors and without a request outside the loca
 map has one lane feature per lane of the build; clicking a finding marker opens its popup with rule and
 road; the 3D canvas is not blank; the time slider moves the ego on both views to the recorded positions.
 `twin drive --view` on the same build: the page follows the running drive (the ego moves on both views, where
-the served state says) and shows that the drive ended.
+the served state says) at the bounded rate of a browser drawing in software, drawing one 3D frame per update
+and none while nothing changes, and shows that the drive ended.
 Skips where chromium or playwright is missing, fails under CI=true (.ci/run installs chromium).
 """
 
@@ -208,7 +209,7 @@ def test_live_drive_moves_the_ego(browser, perth, tmp_path):
     import time
 
     out = tmp_path / "live"
-    process = subprocess.Popen([str(BIN / "twin"), "drive", "--map", str(perth), "--random", "--duration", "40",
+    process = subprocess.Popen([str(BIN / "twin"), "drive", "--map", str(perth), "--random", "--duration", "60",
                                 "--seed", "0", "--traffic", "6", "--pedestrians", "3", "--no-plot", "--pace", "2",
                                 "--view", "--view-port", "0", "--no-browser", "-o", str(out)],
                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
@@ -234,12 +235,17 @@ def test_live_drive_moves_the_ego(browser, perth, tmp_path):
                                timeout=120_000)
         where = """() => { const live = window.mapkit.live, ego = live.latest.ego;
                     return {t: ego.t, x: ego.x, y: ego.y, lat: ego.lat, lon: ego.lon, updates: live.updates,
-                            map: window.mapkit.map2d.replay.ego.getLatLng(),
+                            map: window.mapkit.map2d.replay.ego.getLatLng(), frames: window.mapkit.scene3d.frames,
                             scene: window.mapkit.scene3d.ego.position.toArray()}; }"""
+        # a headless chromium draws in software: the page asks for 2 updates a second, not the drive's 10
+        assert page.evaluate("[window.mapkit.software, window.mapkit.live.rate_hz]") == [True, 2]
         first = page.evaluate(where)
         page.wait_for_function(f"window.mapkit.live.latest.ego.t > {first['t'] + 8}", timeout=60_000)
         later = page.evaluate(where)
         assert later["updates"] > first["updates"]
+        # the 3D view draws on demand: one frame per update (the camera stands still), no animation loop
+        assert later["updates"] - first["updates"] - 1 <= later["frames"] - first["frames"] \
+            <= later["updates"] - first["updates"] + 1
         assert np.hypot(later["scene"][0] - first["scene"][0], later["scene"][2] - first["scene"][2]) > 5.0
         assert (later["map"]["lat"], later["map"]["lng"]) != (first["map"]["lat"], first["map"]["lng"])
         # where the state served last says (one evaluate runs between two polls: the views show that state)
@@ -250,6 +256,9 @@ def test_live_drive_moves_the_ego(browser, perth, tmp_path):
         page.wait_for_function("window.mapkit.live.stopped", timeout=10_000)
         assert page.evaluate("window.mapkit.live.finished") is True  # it saw the end before the server stopped
         assert page.locator("#live-badge").inner_text() == "ENDED"
+        frames = page.evaluate("window.mapkit.scene3d.frames")
+        page.wait_for_timeout(1000)
+        assert page.evaluate("window.mapkit.scene3d.frames") == frames  # nothing changes, nothing is drawn
         assert watched.errors == []
         assert all(u.startswith((url, "data:")) for u in watched.requests)
         page.close()

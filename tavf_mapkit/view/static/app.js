@@ -1,7 +1,7 @@
 // The live page of `mapkit view` (and of `twin drive --view`): fetches the build's data from the local server
 // and wires the 2D map, the 3D view and the replay bar (or the live bar) together. window.mapkit exposes them
 // (for people at the console, and tests).
-import { MapkitScene3D } from "./scene3d.js";
+import { MapkitScene3D, rendersInSoftware } from "./scene3d.js";
 
 async function fetchJSON(url) {
   const response = await fetch(url);
@@ -26,11 +26,13 @@ async function main() {
   document.title = "mapkit view: " + mapData.name;
   document.getElementById("title").textContent = mapData.name;
   const map2d = window.MapkitMap2D(document.getElementById("map2d"), mapData, options);
-  const scene3d = new MapkitScene3D(document.getElementById("view3d"), sceneData);
-  window.mapkit = { data: mapData, scene: sceneData, map2d, scene3d };
+  const software = rendersInSoftware();
+  const scene3d = new MapkitScene3D(document.getElementById("view3d"), sceneData, { software });
+  window.mapkit = { data: mapData, scene: sceneData, map2d, scene3d, software };
   layoutButtons(document.getElementById("views"));
   if (options.live) {  // `twin drive --view`: the bar follows the running drive instead of replaying a run
-    window.mapkit.live = window.MapkitLive(document.getElementById("replay"), [map2d, scene3d], options.live);
+    window.mapkit.live = window.MapkitLive(document.getElementById("replay"), [map2d, scene3d],
+                                          Object.assign({ software }, options.live));
     await scene3d.loaded;
   } else {
     const replay = window.MapkitReplay(document.getElementById("replay"), runs, (i) => fetchJSON("api/runs/" + i),

@@ -6,12 +6,20 @@
 
   const MAX_TRAIL = 20000;  // ego states kept for the track (33 min at 10 Hz); older ones are dropped
   const EGO_KEYS = ["t", "x", "y", "z", "yaw", "speed", "lat", "lon", "road", "lane"];
+  // updates a second where the browser draws in software (options.software): each one redraws and composites
+  // the page on the CPU, tens of ms of a core, which the simulation beside it needs (docs/view.md, "Cost")
+  const SOFTWARE_RATE_HZ = 2;
 
   function MapkitLive(element, views, options) {
-    const period = 1000 / Math.max(0.1, Math.min(60, (options && options.rate_hz) || 10));
+    options = options || {};
+    let rate = Math.max(0.1, Math.min(60, options.rate_hz || 10));
+    if (options.software) rate = Math.min(rate, SOFTWARE_RATE_HZ);
+    // one fetch per update drawn: the server keeps only the newest state, so a slower page skips states and
+    // never falls behind
+    const period = 1000 / rate;
     const run = { name: "live", ego: {}, traffic: { frames: [] }, udm: [], notes: [] };
     for (const key of EGO_KEYS) run.ego[key] = [];
-    const state = { run, seq: -1, updates: 0, finished: false, stopped: false, latest: null };
+    const state = { run, seq: -1, updates: 0, finished: false, stopped: false, latest: null, rate_hz: rate };
     element.hidden = false;
     element.innerHTML = "<span id='live-badge' class='live-badge'>LIVE</span><span id='live-time'>waiting for " +
       "the drive&hellip;</span><span id='live-info'></span>";
@@ -36,7 +44,8 @@
       const speed = ego.speed === null ? "" : (ego.speed * 3.6).toFixed(1) + " km/h";
       label.textContent = "t = " + ego.t.toFixed(2) + " s  " + speed + "  road " + ego.road + " lane " + ego.lane;
       const traffic = live.traffic ? live.traffic.ids.length + " SUMO actors" : "no traffic";
-      info.textContent = "  " + traffic + (live.udm ? ", " + live.udm.objects.length + " UDM objects" : "");
+      info.textContent = "  " + traffic + (live.udm ? ", " + live.udm.objects.length + " UDM objects" : "") +
+        (rate < options.rate_hz ? "  (" + rate + " updates/s: this browser draws without a GPU)" : "");
       if (state.updates === 1) resolveFirst(live);
     }
 

@@ -13,13 +13,29 @@ const UDM_COLOURS = [0xadb5bd, 0xadb5bd, 0x4dabf7, 0xffa94d, 0xff6b6b];
 const EGO = { length: 4.97, width: 1.96, height: 1.45 };  // the twin's Tesla Model S
 const PARALLEL = 6;  // tiles loaded at once
 
+// Whether this browser draws in software (no GPU: SwiftShader in a headless chromium or a VM, Mesa's llvmpipe):
+// then every frame of the page -- WebGL, the 2D map's canvases, the compositing -- costs CPU, ~50 ms of a core
+// per live update with antialiasing, on a machine whose other core runs the simulation.
+export function rendersInSoftware() {
+  const probe = document.createElement("canvas");
+  const gl = probe.getContext("webgl2") || probe.getContext("webgl");
+  if (!gl) return true;
+  const info = gl.getExtension("WEBGL_debug_renderer_info");
+  const name = String(gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER));
+  const lose = gl.getExtension("WEBGL_lose_context");
+  if (lose) lose.loseContext();  // browsers keep a few contexts only: give this one back at once
+  return /swiftshader|llvmpipe|softpipe|software|basic render/i.test(name);
+}
+
 export class MapkitScene3D {
-  constructor(element, data) {
+  constructor(element, data, options) {
     this.element = element;
     this.data = data;
     this.origin = data.origin;
-    // preserveDrawingBuffer: the canvas can be read back (screenshots, tests)
-    this.renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+    this.software = Boolean(options && options.software);
+    // preserveDrawingBuffer: the canvas can be read back (screenshots, tests); no multisampling in software,
+    // where it took most of a frame's time
+    this.renderer = new THREE.WebGLRenderer({ antialias: !this.software, preserveDrawingBuffer: true });
     this.renderer.setPixelRatio(window.devicePixelRatio || 1);
     element.appendChild(this.renderer.domElement);
     this.scene = new THREE.Scene();
@@ -38,25 +54,45 @@ export class MapkitScene3D {
     this.follow = false;
     this.run = null;
     this.actors = new Map();
-    // render on demand: only frames in which something changed (the camera, a tile loaded, the replay's or the
-    // live drive's time), not 60 a second of the same picture -- a page left open must not take a core
-    this.dirty = true;
+    this.udmMaterials = new Map();
+    this.udmGeometry = new THREE.BoxGeometry(1.5, 1.5, 1.5);
+    // render on demand: a frame is asked for (this.dirty = true) when something changed -- the camera, a tile
+    // loaded, the replay's or the live drive's time -- and drawn at the next animation frame; no loop runs
+    // while nothing changes (fly mode excepted: its keys move the camera every frame), so a page left open
+    // takes no core, not even to wake up 60 times a second
+    this.frameAsked = false;
+    this.frames = 0;  // frames drawn (tests, benchmarks)
+    this.drawFrame = () => {
+      this.frameAsked = false;
+      if (this.controls.isFlyControls) {
+        this.controls.update(this.clock.getDelta());  // dispatches "change" (dirty) when it moved the camera
+        this.askFrame();
+      }
+      if (!this._dirty) return;
+      this._dirty = false;
+      this.renderer.render(this.scene, this.camera);
+      this.frames += 1;
+    };
+    this._dirty = false;
     this.fitCamera();
     this.useOrbit();
     this.addToolbar();
     new ResizeObserver(() => this.resize()).observe(element);
     this.resize();
     this.loaded = this.loadAll();
-    const animate = () => {
-      requestAnimationFrame(animate);
-      const delta = this.clock.getDelta();
-      if (this.controls.isFlyControls) this.controls.update(delta);  // both dispatch "change" when they moved
-      else this.controls.update();
-      if (!this.dirty) return;
-      this.dirty = false;
-      this.renderer.render(this.scene, this.camera);
-    };
-    animate();
+  }
+
+  get dirty() { return this._dirty; }
+
+  set dirty(value) {
+    this._dirty = Boolean(value);
+    if (value) this.askFrame();
+  }
+
+  askFrame() {
+    if (this.frameAsked) return;
+    this.frameAsked = true;
+    requestAnimationFrame(this.drawFrame);
   }
 
   toScene(x, y, z) {
@@ -79,6 +115,7 @@ export class MapkitScene3D {
     this.controls.maxPolarAngle = Math.PI * 0.495;
     this.controls.addEventListener("change", () => { this.dirty = true; });
     this.controls.update();
+    this.dirty = true;
   }
 
   useFly() {
@@ -88,6 +125,8 @@ export class MapkitScene3D {
     this.controls.rollSpeed = 0.6;
     this.controls.dragToLook = true;
     this.controls.addEventListener("change", () => { this.dirty = true; });
+    this.clock.getDelta();  // no jump for the time spent in orbit mode
+    this.askFrame();
   }
 
   addToolbar() {
@@ -209,6 +248,7 @@ export class MapkitScene3D {
       const shift = this.ego.position.clone().sub(this.controls.target);
       this.controls.target.add(shift);
       this.camera.position.add(shift);
+      this.controls.update();
     }
     const t = ego.t[index];
     if (run.traffic && run.traffic.frames.length) {
@@ -234,16 +274,24 @@ export class MapkitScene3D {
       }
       for (const [id, actor] of this.actors) if (!seen.has(id)) actor.visible = false;
     }
-    this.udm.clear();
+    this.udm.clear();  // one shared box and one material per layer: nothing to dispose of at every update
     const answers = (run.udm || []).filter((a) => a.t !== null && a.t <= t && a.status === "ok");
     if (answers.length) {
       for (const obj of answers[answers.length - 1].objects) {
         if (obj.x === undefined) continue;
-        const cube = new THREE.Mesh(new THREE.BoxGeometry(1.5, 1.5, 1.5),
-                                    new THREE.MeshStandardMaterial({ color: UDM_COLOURS[obj.layer] || 0xadb5bd }));
+        const cube = new THREE.Mesh(this.udmGeometry, this.udmMaterial(obj.layer));
         this.place(cube, obj.x, obj.y, ego.z[index], 0, 0.75);
         this.udm.add(cube);
       }
     }
+  }
+
+  udmMaterial(layer) {
+    let material = this.udmMaterials.get(layer);
+    if (!material) {
+      material = new THREE.MeshStandardMaterial({ color: UDM_COLOURS[layer] || 0xadb5bd });
+      this.udmMaterials.set(layer, material);
+    }
+    return material;
   }
 }
