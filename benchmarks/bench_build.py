@@ -8,6 +8,14 @@ and peak RSS (resource.getrusage of the child processes, measured in a fresh pro
 belongs to that run), the rebuild time of unchanged input, and for comparison ("peer") the same netconvert
 commands run alone, so the pipeline's own overhead is visible. Targets: full build of Jungfernstieg <= 10 s,
 TAVF <= 20 s, rebuild < 2 s; the ratio column is figure / target (below 1 is within target).
+
+The manifest's peaks are maxima of the whole build so far, so a stage's own peak hides under an earlier one's.
+``--stages-of INPUT`` measures each stage alone instead: the build is run once per stage, each time in a fresh
+process with one stage more (a pipeline file of the first k stages, the stages before reused from the folder),
+so that process's peak RSS is that stage's (issue 13's limit: every stage <= 2 GB):
+
+    $ .venv/bin/python benchmarks/bench_build.py --stages-of ../shared/data/zoo/osm/SI_maribor.osm.gz \
+          --keep /tmp/bench-maribor
 """
 
 from __future__ import annotations
@@ -26,6 +34,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("TAVF_SHARED_DATA", REPO.parent / "shared" / "data"))
 MAPKIT = Path(sys.executable).parent / "mapkit"
+DEFAULT_STAGES = ("extract", "netconvert", "opendrive", "mesh", "collision", "check", "report")
 
 CASES = [  # name, input, extra options, full-build target (s)
     ("sample", REPO / "sample_data" / "tavf_synthetic.osm", [], None),
@@ -97,12 +106,71 @@ def run_case(name: str, source: Path, options: list[str], repeat: int, scratch: 
     }
 
 
+def stage_by_stage(source: Path, stages: list[str], scratch: Path, options: list[str]) -> list[dict]:
+    """Each stage's wall time and peak RSS, measured alone: build with the first k stages in a fresh process
+    for k = 1..len(stages), the stages before reused from the folder (a stage that ran again is reported)."""
+    folder = scratch / "build"
+    rows = []
+    for k, stage in enumerate(stages, 1):
+        pipeline = scratch / f"stages-{k}.toml"
+        pipeline.write_text("[pipeline]\nstages = [" + ", ".join(json.dumps(name) for name in stages[:k])
+                            + "]\n", encoding="utf-8")
+        figures = measure([str(MAPKIT), "build", str(source), "--pipeline", str(pipeline), "-o", str(folder), "-q",
+                           *options])
+        records = json.loads((folder / "manifest.json").read_text())["stages"]
+        ran = [r for r in records if r["status"] == "ran"]
+        mine = next((r for r in ran if r["name"] == stage), None)
+        before = max((r["peak_rss_mib"]["mapkit"] for r in ran if r is not mine and records.index(r)
+                      < records.index(mine)), default=0.0) if mine else 0.0
+        # the manifest's peaks are the process's maxima so far: the stage's own when it rose above the stages
+        # that ran before it in this process (a rebuild reruns netconvert and the opendrive stage), else at most
+        # the figure before
+        own = None if mine is None else mine["peak_rss_mib"]["mapkit"]
+        rows.append({"stage": stage, "wall_s": figures["wall"], "peak_rss_mib": figures["peak_rss_mib"],
+                     "stage_peak_rss_mib": own, "stage_peak_is_bound": own is not None and own <= before,
+                     "stage_s": None if mine is None else mine["seconds"],
+                     "also_ran": [r["name"] for r in ran if r is not mine]})
+    return rows
+
+
+def print_stage_by_stage(source: Path, rows: list[dict]) -> None:
+    print(f"mapkit build {source.name}, one stage per fresh process ({sys.platform}, {os.cpu_count()} CPUs)\n")
+    print(f"{'stage':<11} {'stage s':>9} {'stage peak MiB':>15} {'process s':>10} {'process peak MiB':>17}  note")
+    for row in rows:
+        note = f"also ran: {', '.join(row['also_ran'])}" if row["also_ran"] else ""
+        stage_s = "-" if row["stage_s"] is None else f"{row['stage_s']:.1f}"
+        own = row["stage_peak_rss_mib"]
+        own = "-" if own is None else ("<= " if row["stage_peak_is_bound"] else "") + f"{own:.1f}"
+        print(f"{row['stage']:<11} {stage_s:>9} {own:>15} {row['wall_s']:10.1f} {row['peak_rss_mib']:17.1f}  {note}")
+    print(f"\nbuild peak (largest process): {max(row['peak_rss_mib'] for row in rows):.1f} MiB"
+          " (the process peak includes the subprocesses, e.g. netconvert)")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--keep", type=Path, default=None, help="keep the build folders here")
     parser.add_argument("--json", action="store_true", help="print the figures as JSON")
+    parser.add_argument("--stages-of", type=Path, default=None, metavar="INPUT",
+                        help="measure each stage's peak RSS alone on this input (one fresh process per stage)")
+    parser.add_argument("--stages", default=",".join(DEFAULT_STAGES),
+                        help="with --stages-of: the stages, comma-separated (default: %(default)s)")
+    parser.add_argument("--build-option", action="append", default=[],
+                        help="with --stages-of: an extra option for mapkit build (repeatable)")
     arguments = parser.parse_args()
+    if arguments.stages_of is not None:
+        scratch = arguments.keep or Path(tempfile.mkdtemp(prefix="bench-stages-"))
+        scratch.mkdir(parents=True, exist_ok=True)
+        try:
+            rows = stage_by_stage(arguments.stages_of, arguments.stages.split(","), scratch, arguments.build_option)
+        finally:
+            if not arguments.keep:
+                shutil.rmtree(scratch, ignore_errors=True)
+        if arguments.json:
+            print(json.dumps(rows, indent=2))
+        else:
+            print_stage_by_stage(arguments.stages_of, rows)
+        return
     if not SHARED.is_dir():
         raise SystemExit(f"shared data folder {SHARED} not present")
     if arguments.keep:
