@@ -33,6 +33,7 @@ _GEOMETRY_TAGS = {
 _GEOMETRY_TAG_SET = set(_GEOMETRY_TAGS)
 _CUBIC = ("a", "b", "c", "d")
 _LANE_RECORDS = frozenset({"speed", "access", "material", "visibility", "rule"})
+_SHARED_NUMBER_LENGTH = 6  # attribute values this short are shared even when they are numbers (Reader.attrib)
 
 
 def load_opendrive(path: str | Path) -> OpenDriveMap:
@@ -126,12 +127,13 @@ class _Reader:
     def attrib(self, element) -> dict:
         """The element's attributes as a dict, names and word values shared: a city map has millions of
         attributes, mostly the same few names and words ("type", "driving", "solid"), and lxml makes a new
-        string for each. Numbers are not shared (nearly all distinct)."""
+        string for each. Long numbers are not shared (nearly all distinct); short ones are (a lane's id "-1", a
+        mark's width "0.13", a speed "13.89", an sOffset "0": the same few on every lane of a city)."""
         strings = self.strings
         out = {}
         for name, value in element.attrib.items():
             name = strings.setdefault(name, name)
-            if value and not (value[0].isdigit() or value[0] in "-+."):
+            if value and (len(value) <= _SHARED_NUMBER_LENGTH or not (value[0].isdigit() or value[0] in "-+.")):
                 value = strings.setdefault(value, value)
             out[name] = value
         return out
