@@ -60,6 +60,26 @@ def test_batches_of_any_size_give_the_same_files(built, tmp_path):
     assert not [p for p in (tmp_path / "one").iterdir() if p.name.startswith(".")]  # no spill left
 
 
+def test_tile_caches_of_any_size_give_the_same_files(sample_build_dir, tmp_path, monkeypatch):
+    """The merged spill tiles are cached by bytes (a freeway interchange's tiles are megabytes): a cache that
+    holds one tile at a time merges tiles again and again, and writes the same files."""
+    from tavf_mapkit.mesh import tiled
+
+    xodr, osm = build_inputs(sample_build_dir)
+    odr = load_opendrive(xodr)
+    reads = []
+    original = tiled.ChunkStore.get
+    monkeypatch.setattr(tiled.ChunkStore, "get", lambda store, key: reads.append(key) or original(store, key))
+    roomy = write_mesh_folder(odr, tmp_path / "roomy", osm_path=osm)
+    roomy_reads = len(reads)
+    monkeypatch.setattr(tiled, "TILE_CACHE_BYTES", 1)
+    tight = write_mesh_folder(odr, tmp_path / "tight", osm_path=osm)
+    assert roomy == tight
+    a, b = files(tmp_path / "roomy"), files(tmp_path / "tight")
+    assert list(a) == list(b) and not [name for name in a if a[name] != b[name]]
+    assert len(reads) - roomy_reads > 2 * roomy_reads  # spill tiles were read again: the cache held one at a time
+
+
 def test_the_tiles_are_the_whole_maps_meshes_exported_at_once(built, tmp_path):
     xodr, osm = built
     odr = load_opendrive(xodr)

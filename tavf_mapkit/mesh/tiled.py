@@ -38,10 +38,13 @@ from tavf_mapkit.mesh.units import BLOCK
 from tavf_mapkit.progress import Progress, Report, reporter
 from tavf_mapkit.tilegrid import TileGrid, group_by_tile, origin_of_bounds, tile_name
 
-#: metres of lane per batch: memory of a batch grows with it (about 0.3 MB per km), time hardly at all
-BATCH_WORK = 100_000.0
+#: metres of lane per batch: memory of a batch grows with it (about 2 MB per km: AT_krems meshed in batches of
+#: 100, 25 and 10 km peaked 204, 90 and 70 MiB above its loaded map), time hardly at all
+BATCH_WORK = 20_000.0
 LABELLED = "labelled"
-TILE_CACHE = 256          # spilled tiles kept merged in memory while curbs and buildings look around
+TILE_CACHE = 256          # spilled tiles kept merged in memory while curbs and buildings look around ...
+TILE_CACHE_BYTES = 64 << 20  # ... and at most this many bytes of them per cache: a city's freeway interchanges
+                             # make tiles of megabytes, and 256 of them in each of the five caches held GBs
 CLUSTER_GROUP = 64        # junction clusters whose surroundings are sampled together
 CURBS, JUNCTION_CURBS, OBJECTS, SIGNALS, BUILDINGS = range(5)  # producers, in the order of the scene solids
 
@@ -142,6 +145,7 @@ def write_tiled_mesh(odr, folder: str | Path, eps: float, fmt: str = "glb", tile
             else:
                 remote.junction_curbs(fanout, surface, stores, tally, reporter(progress, "junction clusters"))
             _buildings(odr, units, osm_path, surface, stores, tally, reporter(progress, "building groups"))
+            del surface  # its merged tiles are not held under the final grid's own (pass 4)
         origin = origin_of_bounds(tally.low, tally.high) if origin is None else tuple(float(v) for v in origin)
         grid = TileGrid(origin, float(tile_size))
         summary = _write_tiles(odr, folder, fmt, grid, stores, tally, preview, exports, eps, osm_path, solids,
@@ -267,6 +271,50 @@ def _solid_arrays(solids: list, keys: np.ndarray) -> dict:
 
 # -- passes 2 and 3: what needs the surface around it ------------------------------------------------------------
 
+class _TileCache:
+    """Merged spill tiles, least recently used first out: at most TILE_CACHE of them and TILE_CACHE_BYTES of
+    their arrays. Only the time depends on it (a tile that left is merged again when asked for)."""
+
+    def __init__(self):
+        self.entries: OrderedDict = OrderedDict()
+        self.sizes: dict = {}
+        self.bytes = 0
+
+    def get(self, key):
+        entry = self.entries.get(key)
+        if entry is not None:
+            self.entries.move_to_end(key)
+        return entry
+
+    def __contains__(self, key) -> bool:
+        return key in self.entries
+
+    def put(self, key, entry) -> None:
+        self.entries[key] = entry
+        self.sizes[key] = _nbytes(entry)
+        self.bytes += self.sizes[key]
+        while len(self.entries) > 1 and (len(self.entries) > TILE_CACHE or self.bytes > TILE_CACHE_BYTES):
+            old, _ = self.entries.popitem(last=False)
+            self.bytes -= self.sizes.pop(old)
+
+
+def _nbytes(value) -> int:
+    """Bytes of the arrays in a cache entry (meshes, keys, dicts and lists of them)."""
+    if value is None:
+        return 0
+    if isinstance(value, np.ndarray):
+        return value.nbytes
+    if isinstance(value, Keyed):
+        return _nbytes(value.mesh) + value.face_key.nbytes + value.vertex_key.nbytes
+    if isinstance(value, dict):
+        return sum(_nbytes(item) for item in value.values())
+    if isinstance(value, (list, tuple)):
+        return sum(_nbytes(item) for item in value)
+    if hasattr(value, "__dataclass_fields__"):
+        return sum(_nbytes(getattr(value, name)) for name in value.__dataclass_fields__)
+    return 0
+
+
 class _SurfaceTiles:
     """The spilled road surface, merged per spill tile on demand (a bounded cache)."""
 
@@ -275,19 +323,16 @@ class _SurfaceTiles:
         self.grid = grid
         self.size = grid.size
         self.reach = reach
-        self.cache: OrderedDict = OrderedDict()
+        self.cache = _TileCache()
         keys = np.array(store.keys(), dtype=np.int64).reshape(-1, 2)
         self.low = keys.min(axis=0) if len(keys) else np.zeros(2, dtype=np.int64)
         self.high = keys.max(axis=0) if len(keys) else np.zeros(2, dtype=np.int64)
 
     def _tile(self, index) -> Keyed | None:
         if index in self.cache:
-            self.cache.move_to_end(index)
-            return self.cache[index]
+            return self.cache.get(index)
         merged = merge([from_arrays(data, False) for data in self.store.get(index)])
-        self.cache[index] = merged
-        if len(self.cache) > TILE_CACHE:
-            self.cache.popitem(last=False)
+        self.cache.put(index, merged)
         return merged
 
     def cells(self, box, grow: float) -> tuple[np.ndarray, np.ndarray]:
@@ -564,7 +609,7 @@ class _Regrid:
 
     def __init__(self, store: ChunkStore, grid: TileGrid, spill_grid: TileGrid, name: str):
         self.store, self.grid, self.name = store, grid, name
-        self.cache: OrderedDict = OrderedDict()
+        self.cache = _TileCache()
         self.sources: dict = {}  # final tile -> spill tiles that may hold pieces of it
         for key in store.keys():
             # the final tiles the spill tile's square reaches into; one tile more on each side for rounding
@@ -579,8 +624,7 @@ class _Regrid:
 
     def _load(self, key):
         if key in self.cache:
-            self.cache.move_to_end(key)
-            return self.cache[key]
+            return self.cache.get(key)
         chunks = self.store.get(key)
         if self.name == "whole":
             groups = {}
@@ -591,9 +635,7 @@ class _Regrid:
         else:
             merged = merge([from_arrays(data, self.name == "marks") for data in chunks])
             entry = (merged, group_by_tile(face_tiles(self.grid, merged.mesh)) if merged is not None else {})
-        self.cache[key] = entry
-        if len(self.cache) > TILE_CACHE:
-            self.cache.popitem(last=False)
+        self.cache.put(key, entry)
         return entry
 
     def parts(self, tile) -> list:
