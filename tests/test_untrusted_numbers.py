@@ -263,6 +263,35 @@ def test_opendrive_stage_repairs_netconvert_output_and_counts_it(tmp_path):
     assert result.exit_code == 0 and json.loads(result.output)["total_length_m"] == pytest.approx(212.5, abs=1e-6)
 
 
+def test_opendrive_stage_lets_netconvert_s_map_go_before_writing_the_repaired_one(tmp_path, monkeypatch):
+    """The unrepaired map is not held while the repaired one is written and summarised (on a city whose curves
+    became arcs the two together took 1 GB more than the repaired map alone)."""
+    import gc
+    import weakref
+
+    from tavf_mapkit.opendrive import writer
+    from tavf_mapkit.pipeline.context import BuildContext
+
+    loaded, alive_when_written = [], []
+    load, write = BuildContext.opendrive, writer.write_opendrive
+
+    def load_and_watch(context):
+        odr = load(context)
+        loaded.append(weakref.ref(odr))
+        return odr
+
+    def watch_and_write(odr, path):
+        gc.collect()
+        alive_when_written.append(loaded[0]() is not None)
+        write(odr, path)
+
+    monkeypatch.setattr(BuildContext, "opendrive", load_and_watch)
+    monkeypatch.setattr(writer, "write_opendrive", watch_and_write)
+    xodr, output = _run_opendrive_stage(tmp_path / "build", "Mon Nov 23 18:28:43 2026")
+    assert output.facts["repairs"] and alive_when_written == [False]
+    assert load_opendrive(xodr).road_by_id["7"].length == pytest.approx(12.5, abs=1e-6)
+
+
 def test_reference_network_with_absurd_shapes_is_refused_in_one_line(tmp_path, sample_build_dir):
     """`mapkit compare` resamples the reference network's lane shapes: they are checked like a map's geometry."""
     import re
