@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, slots=True)
 class CubicProfile:
     """Ascending record starts ``s0`` and coefficients; value 0 before the first record and when empty."""
 
@@ -25,9 +25,11 @@ class CubicProfile:
         if not records:
             return EMPTY_PROFILE
         array = np.asarray(records, dtype=float).reshape(-1, 5)
-        order = np.argsort(array[:, 0], kind="stable")
-        array = array[order]
-        return CubicProfile(np.ascontiguousarray(array[:, 0]), np.ascontiguousarray(array[:, 1:]), extend_first)
+        if len(array) > 1:
+            array = array[np.argsort(array[:, 0], kind="stable")]
+        # two arrays of their own, not views of one: a view of a one-record profile keeps the (1, 5) array and
+        # its object alive as well (a city has hundreds of thousands of lane widths, mostly of one record)
+        return CubicProfile(array[:, 0].copy(), array[:, 1:].copy(), extend_first)
 
     def __len__(self) -> int:
         return len(self.s0)

@@ -5,13 +5,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class LaneLink:
     from_lane: int
     to_lane: int
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Connection:
     id: str
     incoming_road: str
@@ -22,14 +22,14 @@ class Connection:
     extra_xml: tuple[bytes, ...] = field(default=(), compare=False)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class JunctionController:
     id: str
     type: str | None = None
     sequence: int | None = None
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Junction:
     id: str
     name: str = ""
@@ -41,7 +41,7 @@ class Junction:
     extra_xml: tuple[bytes, ...] = field(default=(), compare=False)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Controller:
     id: str
     name: str = ""

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 from tavf_mapkit.opendrive.cubic import EMPTY_PROFILE, CubicProfile
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class RoadMarkLine:
     """An explicit or type ``<line>`` of a road mark (lengths in m)."""
 
@@ -21,7 +21,7 @@ class RoadMarkLine:
     attrib: dict = field(default_factory=dict, compare=False)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class RoadMark:
     s_offset: float
     type: str = "none"
@@ -39,14 +39,14 @@ class RoadMark:
     extra_xml: tuple[bytes, ...] = field(default=(), compare=False)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class LaneHeight:
     s0: float  # absolute road s
     inner: float
     outer: float
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class LaneRecord:
     """speed, access or material records of a lane: kept as attributes (sOffset made absolute in s0)."""
 
@@ -56,7 +56,7 @@ class LaneRecord:
     extra_xml: tuple[bytes, ...] = field(default=(), compare=False)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Lane:
     id: int
     type: str = "driving"

@@ -14,7 +14,7 @@ from tavf_mapkit.opendrive.refline import ReferenceLine
 from tavf_mapkit.opendrive.surface import surface_points
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class RoadLink:
     element_type: str  # "road" or "junction"
     element_id: str
@@ -22,7 +22,7 @@ class RoadLink:
     attrib: dict = field(default_factory=dict, compare=False)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class RoadType:
     s0: float
     type: str
@@ -32,7 +32,7 @@ class RoadType:
     speed_attrib: dict | None = field(default=None, compare=False)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class ShapeRecord:
     s0: float
     t: float
