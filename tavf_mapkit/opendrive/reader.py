@@ -117,6 +117,7 @@ class _Reader:
         self.road_id: str | None = None
         self.strings: dict[str, str] = {}
         self.packer = RowPacker()  # the reference lines' rows in shared arrays, not one small array per road
+        self.attribs: dict[tuple, dict] = {}  # shared_attrib
 
     # -- helpers ---------------------------------------------------------------------------------------------
     def word(self, element, name: str, default: str | None = None) -> str | None:
@@ -137,6 +138,13 @@ class _Reader:
                 value = strings.setdefault(value, value)
             out[name] = value
         return out
+
+    def shared_attrib(self, element) -> dict:
+        """``attrib``, one dict for every element with the same attributes (a city's lanes, road marks and lane
+        records repeat a few: {id: -1, type: driving, level: true}). The model's attribute dicts are never
+        changed in place (a repair copies one to change it), so sharing them is safe."""
+        out = self.attrib(element)
+        return self.attribs.setdefault(tuple(out.items()), out)
 
     def line(self, element) -> int | None:
         return element.sourceline + self.source.line_offset if element.sourceline else None
@@ -359,7 +367,8 @@ class _Reader:
         if speed is not None:
             speed_max = speed_to_mps(speed.get("max"), speed.get("unit"))
         return RoadType(self.number(element, "s", 0.0), element.get("type", "unknown"), element.get("country"),
-                        speed_max, self.attrib(element), self.attrib(speed) if speed is not None else None)
+                        speed_max, self.shared_attrib(element),
+                        self.shared_attrib(speed) if speed is not None else None)
 
     def plan_view(self, element) -> ReferenceLine:
         # rows, not Geometry objects: a map's curves as arcs are millions of records (see refline.py)
@@ -463,7 +472,8 @@ class _Reader:
                 heights.append(LaneHeight(section_s0 + self.number(child, "sOffset", 0.0),
                                           self.number(child, "inner", 0.0), self.number(child, "outer", 0.0)))
             elif tag in _LANE_RECORDS:
-                records.append(LaneRecord(tag, section_s0 + self.number(child, "sOffset", 0.0), self.attrib(child),
+                records.append(LaneRecord(tag, section_s0 + self.number(child, "sOffset", 0.0),
+                                          self.shared_attrib(child),
                                           tuple(_verbatim(c) for c in child if isinstance(c.tag, str))))
             elif isinstance(tag, str):
                 unknown.append(_verbatim(child))
@@ -471,7 +481,8 @@ class _Reader:
         return Lane(
             lane_id, self.word(element, "type", "none"), level, predecessor, successor,
             CubicProfile.from_records(widths, extend_first=True), CubicProfile.from_records(borders, extend_first=True),
-            tuple(heights), tuple(marks), tuple(records), self.line(element), self.attrib(element), tuple(unknown),
+            tuple(heights), tuple(marks), tuple(records), self.line(element), self.shared_attrib(element),
+            tuple(unknown),
         )
 
     def road_mark(self, element, section_s0: float) -> RoadMark:
@@ -484,7 +495,8 @@ class _Reader:
             lines = tuple(
                 RoadMarkLine(self.number(line, "length", 0.0), self.number(line, "space", 0.0),
                              self.number(line, "tOffset", 0.0), self.number(line, "sOffset", 0.0),
-                             self.number(line, "width"), self.word(line, "rule"), self.word(line, "color"), self.attrib(line))
+                             self.number(line, "width"), self.word(line, "rule"), self.word(line, "color"),
+                             self.shared_attrib(line))
                 for line in self.children(source, "line"))
             if type_element is not None:
                 type_name = self.word(type_element, "name")
@@ -493,7 +505,7 @@ class _Reader:
             section_s0 + self.number(element, "sOffset", 0.0), self.word(element, "type", "none"), self.word(element, "weight"),
             self.word(element, "color", "standard"), self.number(element, "width"), self.word(element, "laneChange"),
             self.number(element, "height"), self.word(element, "material"), type_name, type_width, lines, explicit,
-            self.attrib(element), self.unknown(element, {"type", "explicit"}),
+            self.shared_attrib(element), self.unknown(element, {"type", "explicit"}),
         )
 
     def road_object(self, element) -> RoadObject:
