@@ -57,22 +57,38 @@ def _road_breaks(arrays, group: np.ndarray, s: np.ndarray):
     return section, s
 
 
-def smooth_geometry_starts(table) -> np.ndarray:
-    """Per row of a GeometryTable: whether the geometry continues the line or arc before it on its road G1 (it
-    starts where that one ends, with its heading, to SMOOTH_JOINT): no kink of the surface there, so no
-    breakpoint. A chain of arcs (opendrive/repair_curves.py: tens of thousands on a city) would otherwise put a
-    cross-section at every joint, however straight the road."""
-    smooth = np.zeros(len(table), dtype=bool)
-    if len(table) < 2:
+def smooth_geometry_starts(table, rows: np.ndarray | None = None) -> np.ndarray:
+    """Per row of a GeometryTable (of ``rows``, ascending, when given: each answer is the one for the whole
+    table, a geometry being evaluated alike whatever else is): whether the geometry continues the line or arc
+    before it on its road G1 (it starts where that one ends, with its heading, to SMOOTH_JOINT): no kink of the
+    surface there, so no breakpoint. A chain of arcs (opendrive/repair_curves.py: tens of thousands on a city)
+    would otherwise put a cross-section at every joint, however straight the road."""
+    rows = np.arange(len(table)) if rows is None else np.asarray(rows, dtype=np.int64)
+    smooth = np.zeros(len(rows), dtype=bool)
+    if len(table) < 2 or not len(rows):
         return smooth
-    closed_form = np.isin(table.kind[:-1], (int(GeometryKind.LINE), int(GeometryKind.ARC)))
-    before = np.flatnonzero((table.group[1:] == table.group[:-1]) & closed_form & (table.length[:-1] > 0))
+    before = np.maximum(rows - 1, 0)
+    closed_form = np.isin(table.kind[before], (int(GeometryKind.LINE), int(GeometryKind.ARC)))
+    which = np.flatnonzero((rows >= 1) & (table.group[rows] == table.group[before]) & closed_form
+                           & (table.length[before] > 0))
+    before, after = before[which], rows[which]
     x, y, heading, _ = table.evaluate(before, table.length[before])
-    after = before + 1
     turn = np.abs((heading - table.hdg[after] + np.pi) % (2.0 * np.pi) - np.pi)
-    smooth[after] = ((np.hypot(x - table.x[after], y - table.y[after]) <= SMOOTH_JOINT) & (turn <= SMOOTH_JOINT)
+    smooth[which] = ((np.hypot(x - table.x[after], y - table.y[after]) <= SMOOTH_JOINT) & (turn <= SMOOTH_JOINT)
                      & (np.abs(table.s[before] + table.length[before] - table.s[after]) <= SMOOTH_JOINT))
     return smooth
+
+
+def _geometry_sections(arrays) -> np.ndarray:
+    """The section row each geometry's start falls in (``_road_breaks``), for the whole map once (kept with the
+    map's tables): a batch of the mesher then evaluates the joints of its own sections' geometries only, not
+    the 5 million of a city's (which took 0.8 GB and most of the time of every batch)."""
+    cached = arrays.__dict__.get("_geometry_sections")
+    if cached is None:
+        g = arrays.geometries
+        cached = _road_breaks(arrays, g.group, g.s)[0]
+        object.__setattr__(arrays, "_geometry_sections", cached)
+    return cached
 
 
 def initial_breaks(arrays, max_segment: float, only: np.ndarray | None = None):
@@ -83,8 +99,17 @@ def initial_breaks(arrays, max_segment: float, only: np.ndarray | None = None):
     sections += [np.arange(n), np.arange(n)]
     values += [arrays.section_s0, arrays.section_end]
     g = arrays.geometries
-    kinks = ~smooth_geometry_starts(g)
-    for group, s in ((g.group[kinks], g.s[kinks]), (arrays.elevation.group, arrays.elevation.s0),
+    if only is None:
+        kinks = ~smooth_geometry_starts(g)
+        kink_group, kink_s = g.group[kinks], g.s[kinks]
+    else:
+        # only the geometries whose start falls in a wanted section: the others' breakpoints are dropped below
+        wanted = np.zeros(n, dtype=bool)
+        wanted[np.asarray(only, dtype=np.int64)] = True
+        rows = np.flatnonzero(wanted[_geometry_sections(arrays)])
+        kinks = ~smooth_geometry_starts(g, rows)
+        kink_group, kink_s = g.group[rows[kinks]], g.s[rows[kinks]]
+    for group, s in ((kink_group, kink_s), (arrays.elevation.group, arrays.elevation.s0),
                      (arrays.superelevation.group, arrays.superelevation.s0),
                      (arrays.lane_offset.group, arrays.lane_offset.s0)):
         sec, ss = _road_breaks(arrays, group, s)
