@@ -80,6 +80,9 @@ def connect(workers: int | None = None, scheduler: str | None = None,
         raise StageError(f"--workers/--scheduler need Dask: {INSTALL_HINT}") from None
     # a task's arguments are its tiles' data (a few MB): no warning about it on every build
     dask.config.set({"distributed.admin.large-graph-warning-threshold": "1GB"})
+    # Dask gives its loggers their own handler at INFO: a local scheduler's start and stop were ~35 lines on
+    # stderr of every `twin sweep --workers N`, even with -q. They follow the command's -v/-q like ours.
+    logging.getLogger("distributed").setLevel(logging.getLogger().getEffectiveLevel())
     cluster = None
     try:
         if scheduler is not None:

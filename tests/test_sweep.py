@@ -102,3 +102,17 @@ def test_not_a_build_is_one_line(tmp_path):
     assert done.returncode == 2
     assert done.stderr.strip() == (f"Error: {tmp_path}: not a build folder (no manifest.json; make one with "
                                    "`mapkit build`)")
+
+
+@pytest.mark.parametrize("verbosity, chatty", [([], False), (["-v"], True)])
+def test_a_local_cluster_logs_only_at_the_commands_verbosity(perth, tmp_path, verbosity, chatty):
+    """Dask gives its loggers their own handler at INFO: the local scheduler's start and stop were ~35 lines on
+    stderr of every `twin sweep --workers N`. Without -v nothing of them shows; `twin -v` shows them."""
+    pytest.importorskip("distributed")
+    done = subprocess.run([TWIN, *verbosity, "sweep", "--map", str(perth), "--seeds", "0", "--duration", "5",
+                           "--workers", "2", "-o", str(tmp_path / "s"), "-q"], capture_output=True, text=True,
+                          timeout=600, check=False)
+    assert done.returncode == 0, done.stderr
+    assert ("INFO distributed.scheduler" in done.stderr) is chatty, done.stderr
+    if not chatty:
+        assert done.stderr == ""
