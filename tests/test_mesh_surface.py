@@ -243,3 +243,20 @@ def test_junction_surfaces_do_not_overlap(name):
     assert {(int(r), int(lane)) for r, lane in zip(mesh.road_index[kept], mesh.lane_id[kept])} <= raised
     # one junction surface per junction
     assert set(surface.junction_footprints) <= {j.id for j in odr.junctions}
+
+
+def test_adaptive_samples_in_small_batches_are_the_same(monkeypatch):
+    """A region's segments are sampled SEGMENTS_PER_CALL at a time (all at once they exceed the map's allocation
+    budget: Columbus); every segment's deviation and every breakpoint's jump is its own, so batches of 7 give
+    exactly the samples of one call."""
+    import tavf_mapkit.mesh.adaptive as adaptive
+
+    odr = load_opendrive(shared_path("xodr", "esmini", "multi_intersections.xodr"))
+    whole = adaptive_samples(odr, 0.02)
+    assert whole.segments > 7 * 3 and whole.discontinuities >= 0
+    monkeypatch.setattr(adaptive, "SEGMENTS_PER_CALL", 7)
+    batched = adaptive_samples(odr, 0.02)
+    np.testing.assert_array_equal(batched.section, whole.section)
+    np.testing.assert_array_equal(batched.s, whole.s)
+    assert (batched.max_deviation, batched.discontinuities, batched.unresolved, batched.segments) == (
+        whole.max_deviation, whole.discontinuities, whole.unresolved, whole.segments)

@@ -30,6 +30,9 @@ HEIGHT_STEP = 1e-3        # m: lane height records are steps; a sample this far 
 LEFT_LIMIT = 1e-7         # m: s - LEFT_LIMIT evaluates the record / geometry that ends at a breakpoint
 CONTINUOUS = 1e-4         # m: cross-sections closer than this on both sides of a breakpoint are one
 SMOOTH_JOINT = 1e-6       # m, rad: a geometry that starts this close to the end of the one before continues it
+#: segments (and breakpoints) sampled per call: a region's millions of segments at once would be more lane samples
+#: than a map's allocation budget (Columbus: 5 M), the lanes of a few thousand are a few hundred thousand
+SEGMENTS_PER_CALL = 16_384
 
 
 @dataclass(frozen=True)
@@ -167,6 +170,11 @@ def segment_deviation(odr, seg_section: np.ndarray, a: np.ndarray, b: np.ndarray
     n = len(a)
     if not n:
         return np.zeros(0)
+    if n > SEGMENTS_PER_CALL:  # each segment's deviation is its own: batches give the same numbers
+        return np.concatenate([
+            segment_deviation(odr, seg_section[i:i + SEGMENTS_PER_CALL], a[i:i + SEGMENTS_PER_CALL],
+                              b[i:i + SEGMENTS_PER_CALL], None if at_break is None else at_break[i:i + SEGMENTS_PER_CALL])
+            for i in range(0, n, SEGMENTS_PER_CALL)])
     f = CHECK_FRACTIONS
     k = len(f)
     s = (a[:, None] + (b - a)[:, None] * f[None, :]).ravel()
@@ -240,16 +248,17 @@ def adaptive_samples(odr, eps: float = 0.05, max_segment: float = 50.0, max_leve
     # the segment before it ends at the left limit and the next one starts at the right value
     jump = np.zeros(len(end), dtype=bool)
     candidates = np.flatnonzero(at_break)
-    if len(candidates):
-        pair_s = np.stack([end[candidates] - LEFT_LIMIT, end[candidates]], axis=1).ravel()
-        sampling = sample_lanes_at(odr, np.repeat(section[candidates], 2), pair_s)
+    for first in range(0, len(candidates), SEGMENTS_PER_CALL):
+        batch = candidates[first:first + SEGMENTS_PER_CALL]
+        pair_s = np.stack([end[batch] - LEFT_LIMIT, end[batch]], axis=1).ravel()
+        sampling = sample_lanes_at(odr, np.repeat(section[batch], 2), pair_s)
         if len(sampling.pair_lane):
-            gap = np.zeros(len(candidates))
+            gap = np.zeros(len(batch))
             for t in (sampling.t_inner, sampling.t_outer):
                 points = sampling.points_at(t)
                 left, right = points[0::2], points[1::2]
                 np.maximum.at(gap, sampling.pair_sample[0::2] // 2, np.linalg.norm(left - right, axis=1))
-            jump[candidates] = gap > CONTINUOUS
+            jump[batch] = gap > CONTINUOUS
     last = np.ones(len(section), dtype=bool)
     last[:-1] = section[1:] != section[:-1]
     end_sample = np.where(jump, end - LEFT_LIMIT, end)
