@@ -232,3 +232,89 @@ def test_largest_strongly_connected_part_matches_the_sumo_network(fixture, reque
     some = sorted(scc)
     route = graph.shortest_path(some[0], some[-1])
     assert route[0] == some[0] and route[-1] == some[-1] and set(route) <= scc
+
+
+# ------------------------------------------------------------------ lane table in bounded chunks
+
+def _whole_map_table(odr, step: float = 1.0):
+    """(length, first, last, rows, s, centre) as sampling the whole map in one go gives them."""
+    from tavf_mapkit.opendrive.sampling import sample_lanes
+
+    sampling = sample_lanes(odr, step, include_end=True)
+    centre = sampling.center_points(with_height=False)
+    rows, n = sampling.pair_lane, len(odr.arrays.lane_id)
+    segment = np.linalg.norm(np.diff(centre, axis=0), axis=1)
+    same = rows[1:] == rows[:-1]
+    length = np.bincount(rows[1:][same], weights=segment[same], minlength=n)
+    begin = np.searchsorted(rows, np.arange(n), side="left")
+    end = np.searchsorted(rows, np.arange(n), side="right") - 1
+    return length, centre[begin], centre[end], rows, sampling.s, centre
+
+
+def _with_budget(odr, max_points: int):
+    """The same map with a smaller allocation budget (the real budget object, its ceiling lowered)."""
+    from dataclasses import replace
+
+    arrays = odr.arrays
+    odr.__dict__["arrays"] = replace(arrays, budget=replace(arrays.budget, max_points=max_points))
+    return odr
+
+
+def test_lane_table_in_tiny_chunks_is_the_whole_map_sampling_to_the_bit(tavf_xodr):
+    """A region's lane table is sampled a few hundred thousand lane samples at a time; chunks of 97 samples
+    on DLR's TAVF network give exactly the numbers of one pass over the whole map, and the table keeps the
+    samples of the requested rows only, in (row, s) order."""
+    from tavf_mapkit.lanegraph.geometry import LaneTable
+
+    odr = load_opendrive(tavf_xodr)
+    arrays = odr.arrays
+    assert np.all(np.diff(arrays.lane_section) >= 0)  # lanes in section order: chunks of sections stay in order
+    length, first, last, rows, s, centre = _whole_map_table(odr)
+    sampled = np.isin(np.arange(len(length)), rows)
+    keep = arrays.lane_type == "driving"
+    chunked = LaneTable.build(odr, 1.0, keep=keep, chunk_samples=97)
+    np.testing.assert_array_equal(chunked.length, length)
+    np.testing.assert_array_equal(chunked.first[sampled], first[sampled])
+    np.testing.assert_array_equal(chunked.last[sampled], last[sampled])
+    wanted = keep[rows]
+    np.testing.assert_array_equal(chunked.sample_row, rows[wanted])
+    np.testing.assert_array_equal(chunked.sample_s, s[wanted])
+    np.testing.assert_array_equal(chunked.sample_xy, centre[wanted, :2])
+    assert chunked.sample_row.dtype == np.int32 and 0 < wanted.sum() < len(rows)
+    whole = LaneTable.build(odr, 1.0, keep=keep, chunk_samples=10**9)
+    for field in ("length", "first", "last", "sample_row", "sample_s", "sample_xy"):
+        np.testing.assert_array_equal(getattr(whole, field), getattr(chunked, field))
+
+
+def test_lane_graph_of_a_map_over_the_budget_as_a_whole(tavf_xodr):
+    """Columbus has 7.3 million lane samples at 1 m, over the budget of one allocation: the lane graph takes
+    them in chunks within it (here: the TAVF network with a ceiling of a third of its lane samples), the
+    same graph as without the lower ceiling; sampling the whole map at once is refused."""
+    from tavf_mapkit.errors import InputError
+    from tavf_mapkit.lanegraph.index import LaneIndex
+    from tavf_mapkit.opendrive.sampling import sample_lanes
+
+    reference = LaneGraph.from_opendrive(load_opendrive(tavf_xodr))
+    total = len(LaneIndex(reference).node)
+    samples, lane_samples = _sample_counts(tavf_xodr)
+    ceiling = int(0.75 * lane_samples)
+    assert samples < ceiling  # the map's samples (per road) fit, its lane samples do not
+    tight = _with_budget(load_opendrive(tavf_xodr), max_points=ceiling)
+    with pytest.raises(InputError, match="lane samples would allocate"):
+        sample_lanes(tight, 1.0)
+    graph = LaneGraph.from_opendrive(tight)
+    assert set(graph.keys) == set(reference.keys) and set(graph.graph.edges) == set(reference.graph.edges)
+    assert [graph.length(k) for k in graph.keys] == [reference.length(k) for k in graph.keys]
+    index = LaneIndex(graph)
+    assert len(index.node) == total
+    probe = index.xy[::50]
+    np.testing.assert_array_equal(index.nearest(probe[:, 0], probe[:, 1]).node,
+                                  LaneIndex(reference).nearest(probe[:, 0], probe[:, 1]).node)
+
+
+def _sample_counts(path) -> tuple[int, int]:
+    """(samples of the reference lines, lane samples) at 1 m."""
+    from tavf_mapkit.opendrive.sampling import sample_lanes
+
+    sampling = sample_lanes(load_opendrive(path), 1.0)
+    return len(sampling.sample_s), len(sampling.pair_lane)

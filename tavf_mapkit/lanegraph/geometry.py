@@ -7,44 +7,73 @@ from dataclasses import dataclass
 import numpy as np
 
 from tavf_mapkit.opendrive.borders import border_offsets
-from tavf_mapkit.opendrive.sampling import sample_lanes
+from tavf_mapkit.opendrive.sampling import sample_lanes_at, section_chunks, section_samples
+
+#: lane samples evaluated at once. The sampler's temporaries cost ~400 bytes a sample (the budget's
+#: MAX_POINTS is about that), what the table keeps 28 (row, s, x, y): sampled in chunks, a region's lane graph
+#: costs memory by its samples' few bytes (Columbus: 7.3 million samples at 1 m), not by the sampler's.
+CHUNK_SAMPLES = 500_000
 
 
 @dataclass(frozen=True, eq=False)
 class LaneTable:
     """Per row of ``odr.arrays``' lane table (in s direction): centre-line length, first and last point;
-    and the centre-line samples themselves (row, s, point), sorted by row then s."""
+    and the centre-line samples of the kept rows (row, s, plan-view point), sorted by row then s."""
 
     length: np.ndarray
     first: np.ndarray  # (n, 3) centre point at the section start
     last: np.ndarray   # (n, 3) centre point at the section end
-    sample_row: np.ndarray
+    sample_row: np.ndarray  # int32
     sample_s: np.ndarray
-    sample_point: np.ndarray  # (m, 3), no lane height
+    sample_xy: np.ndarray  # (m, 2), no lane height
 
     @staticmethod
-    def build(odr, step: float = 1.0) -> LaneTable:
+    def build(odr, step: float = 1.0, keep: np.ndarray | None = None,
+              chunk_samples: int = CHUNK_SAMPLES) -> LaneTable:
+        """``keep``: a mask of lane-table rows whose samples the table keeps (default all); lengths and end
+        points are those of every row. Chunks of whole lane sections in map order give the same numbers, to
+        the bit, as sampling the whole map at once (every number is a lane's own)."""
         arrays = odr.arrays
         n = len(arrays.lane_id)
-        sampling = sample_lanes(odr, step, include_end=True)
-        centre = sampling.center_points(with_height=False)
-        rows = sampling.pair_lane
-        segment = np.linalg.norm(np.diff(centre, axis=0), axis=1)
-        same_lane = rows[1:] == rows[:-1]
-        length = np.bincount(rows[1:][same_lane], weights=segment[same_lane], minlength=n)
-        lanes = np.arange(n)
-        begin = np.searchsorted(rows, lanes, side="left")
-        end = np.searchsorted(rows, lanes, side="right") - 1
-        has = end >= begin
+        keep = np.ones(n, dtype=bool) if keep is None else np.asarray(keep, dtype=bool)
+        length = np.zeros(n)
         first = np.zeros((n, 3))
         last = np.zeros((n, 3))
-        first[has] = centre[begin[has]]
-        last[has] = centre[end[has]]
+        has = np.zeros(n, dtype=bool)
+        kept_rows, kept_s, kept_xy = [], [], []
+        # a chunk may overshoot its bound by one section: half the map's ceiling keeps it within that
+        chunk_samples = min(chunk_samples, arrays.budget.max_points // 2)
+        for sections in section_chunks(arrays, step, chunk_samples):
+            sampling = sample_lanes_at(odr, *section_samples(arrays, step, True, sections))
+            rows = sampling.pair_lane
+            if not len(rows):
+                continue
+            centre = sampling.center_points(with_height=False)
+            low = int(rows[0])  # rows come out ascending: lane by lane, sections in map order
+            lanes = np.arange(low, int(rows[-1]) + 1)
+            segment = np.linalg.norm(np.diff(centre, axis=0), axis=1)
+            same_lane = rows[1:] == rows[:-1]
+            length[lanes] = np.bincount(rows[1:][same_lane] - low, weights=segment[same_lane],
+                                        minlength=len(lanes))
+            begin = np.searchsorted(rows, lanes, side="left")
+            end = np.searchsorted(rows, lanes, side="right") - 1
+            sampled = end >= begin
+            first[lanes[sampled]] = centre[begin[sampled]]
+            last[lanes[sampled]] = centre[end[sampled]]
+            has[lanes[sampled]] = True
+            wanted = keep[rows]
+            kept_rows.append(rows[wanted].astype(np.int32))
+            kept_s.append(sampling.s[wanted])
+            kept_xy.append(centre[wanted, :2])
+            del sampling, centre, segment
         if not np.all(has):  # zero-length lane sections get no samples: evaluate their single point
             missing = np.flatnonzero(~has)
             s = arrays.section_s0[arrays.lane_section[missing]]
             first[missing] = last[missing] = centre_points(odr, missing, s)
-        return LaneTable(length, first, last, rows, sampling.s, centre)
+        return LaneTable(length, first, last,
+                         np.concatenate(kept_rows) if kept_rows else np.zeros(0, dtype=np.int32),
+                         np.concatenate(kept_s) if kept_s else np.zeros(0),
+                         np.concatenate(kept_xy) if kept_xy else np.zeros((0, 2)))
 
 
 def centre_points(odr, lane_rows: np.ndarray, s: np.ndarray) -> np.ndarray:

@@ -54,7 +54,8 @@ class LaneGraph:
         same-direction neighbours where the road mark between them allows it."""
         arrays = odr.arrays
         types = set(lane_types)
-        table = LaneTable.build(odr, step)
+        # the index keeps the centre-line samples of the graph's lanes only (a city's sidewalks are as many)
+        table = LaneTable.build(odr, step, keep=np.isin(arrays.lane_type, sorted(types)))
         section_first = np.searchsorted(arrays.section_road, np.arange(len(odr.roads)), side="left")
         graph = nx.DiGraph()
         rows: dict[LaneKey, int] = {}

@@ -39,7 +39,7 @@ class LaneIndex:
         self.keys = keys
         self.node = node_of_row[table.sample_row[keep]]
         self.s = table.sample_s[keep]
-        self.xy = table.sample_point[keep, :2]
+        self.xy = table.sample_xy[keep]
         self.forward = np.array([graph.drives_with_s(k) for k in keys], dtype=bool)
         self.length = table.length[row_of]
         # arc length from the section start (s direction) at each sample

@@ -56,24 +56,15 @@ class OpenDriveMap:
         """(west, south, east, north) of all lane borders (outer borders sampled every ``step`` m, section ends
         included) in local coordinates. Sampled a few hundred thousand points at a time, so the memory does
         not grow with the map."""
-        from tavf_mapkit.opendrive.sampling import sample_lanes_at, section_samples
+        from tavf_mapkit.opendrive.sampling import sample_lanes_at, section_chunks, section_samples
 
         arrays = self.arrays
-        sections = np.flatnonzero(arrays.section_end - arrays.section_s0 > 0)
         low, high = np.full(2, np.inf), np.full(2, -np.inf)
-        if len(sections):
-            length = arrays.section_end[sections] - arrays.section_s0[sections]
-            # the whole map's samples are refused as before (implausible roads, absurd steps), then taken in parts
-            arrays.budget.check(arrays.section_road[sections], np.floor(length / step + 1e-9) + 1,
-                                f"sampling every {step:g} m")
-            lanes = np.bincount(arrays.lane_section, minlength=len(arrays.section_s0))[sections]
-            points = (np.floor(length / step + 1e-9) + 2) * np.maximum(lanes, 1)
-            chunk = (np.cumsum(points) // BOUNDS_CHUNK).astype(np.int64)
-            for part in np.split(sections, np.flatnonzero(np.diff(chunk)) + 1):
-                border = sample_lanes_at(self, *section_samples(arrays, step, True, part)).outer_border_points()
-                if len(border):
-                    low = np.minimum(low, border[:, :2].min(axis=0))
-                    high = np.maximum(high, border[:, :2].max(axis=0))
+        for part in section_chunks(arrays, step, BOUNDS_CHUNK):
+            border = sample_lanes_at(self, *section_samples(arrays, step, True, part)).outer_border_points()
+            if len(border):
+                low = np.minimum(low, border[:, :2].min(axis=0))
+                high = np.maximum(high, border[:, :2].max(axis=0))
         if not np.isfinite(low[0]):
             return (0.0, 0.0, 0.0, 0.0)
         return (float(low[0]), float(low[1]), float(high[0]), float(high[1]))
