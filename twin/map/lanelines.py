@@ -44,6 +44,8 @@ class LaneLine:
         return point, float(np.arctan2(d[1], d[0]))
 
 
+#: centre-line points evaluated and measured at once (a lane centre costs ~400 bytes through the evaluator)
+BATCH_POINTS = 500_000
 LOOP_WINDOW = 40  # samples: a fold is shorter than this (its size is about the lane's offset)
 CUSP = np.radians(120.0)  # a turn this sharp between two consecutive segments is a fold, not a corner
 FOLD_END = 5.0  # m: a cusp this close to an end cuts the rest of the line off towards that end
@@ -134,8 +136,10 @@ class LaneLines:
         ``without_loops`` and ``without_folds`` run only on the lines that may have a loop or a fold (a region
         has tens of thousands of lanes, nearly all without): the same lines, to the bit."""
         missing = list(dict.fromkeys(k for k in keys if k not in self._cache))
-        if not missing:
-            return
+        for batch in lane_batches(self.graph, missing, self.step):
+            self._preload(batch)
+
+    def _preload(self, missing: list[LaneKey]) -> None:
         found = self.graph.centerlines(missing, self.step)
         lines = [found[k][0] for k in missing]
         counts = np.array([len(p) for p in lines])
@@ -155,6 +159,18 @@ class LaneLines:
         for key, line, distance in zip(missing, lines, along):
             # a line of its own (not a view into the whole batch), as the fold filter's copy was
             self._cache[key] = LaneLine(key, np.ascontiguousarray(line), distance, self.graph.speed_limit(key))
+
+
+def lane_batches(graph: LaneGraph, keys: list[LaneKey], step: float):
+    """``keys`` in runs of about ``BATCH_POINTS`` centre-line points each (estimated from the lanes' lengths),
+    so a region's lines are evaluated and measured in bounded memory; every line is its own, batches or not."""
+    if not keys:
+        return
+    estimate = np.array([graph.length(k) for k in keys]) / step + 2.0
+    batch = (np.cumsum(estimate) // BATCH_POINTS).astype(np.int64)
+    cuts = np.flatnonzero(np.diff(batch)) + 1
+    for lo, hi in zip(np.r_[0, cuts].tolist(), np.r_[cuts, len(keys)].tolist()):
+        yield keys[lo:hi]
 
 
 def _may_loop_or_fold(lane: np.ndarray, points: np.ndarray, count: int) -> np.ndarray:

@@ -36,7 +36,7 @@ from tavf_mapkit.lanegraph import LaneGraph, LaneKey
 from tavf_mapkit.mesh.exact import run_cumsum
 from tavf_mapkit.mesh.swept_path import wheelbase_curvature
 from twin.control.pid import CARLA_LIMITS, ActuatorLimits
-from twin.map.lanelines import LaneLines
+from twin.map.lanelines import LaneLines, lane_batches
 from twin.planning.buffer import JOIN_GAP, join_cut, join_gap, straight_cut
 from twin.planning.chunks import DEGENERATE_LANE
 from twin.vehicle.params import MODEL_S, VehicleParams
@@ -131,14 +131,18 @@ def undrivable_lanes(graph: LaneGraph, lines: LaneLines, radius: float | None = 
                 if lines[k].length >= DEGENERATE_LANE and len(lines[k].points) >= 2]
     if not measured:
         return {}
-    points = [lines[k].points[:, :2] for k in measured]
-    lane = np.repeat(np.arange(len(measured)), [len(p) for p in points])
-    points = np.concatenate(points)
-    cut = worst_cuts(lane, points, radius, max_cut)
-    d = np.diff(points, axis=0)
-    inside = (lane[1:-1] == lane[:-2]) & (lane[2:] == lane[1:-1])  # consecutive segments of one lane
-    turn = np.bincount(lane[1:-1][inside], weights=_wrap(np.diff(np.arctan2(d[:, 1], d[:, 0])))[inside],
-                       minlength=len(measured))
+    cut, turn = [], []
+    # a region's lanes in batches: every lane is measured on its own, so batches give the same numbers
+    for batch in lane_batches(graph, measured, lines.step):
+        points = [lines[k].points[:, :2] for k in batch]
+        lane = np.repeat(np.arange(len(batch)), [len(p) for p in points])
+        points = np.concatenate(points)
+        cut.append(worst_cuts(lane, points, radius, max_cut))
+        d = np.diff(points, axis=0)
+        inside = (lane[1:-1] == lane[:-2]) & (lane[2:] == lane[1:-1])  # consecutive segments of one lane
+        turn.append(np.bincount(lane[1:-1][inside], weights=_wrap(np.diff(np.arctan2(d[:, 1], d[:, 0])))[inside],
+                                minlength=len(batch)))
+    cut, turn = np.concatenate(cut), np.concatenate(turn)
     heading = {k: _headings(lines, k) for k in measured}
     found = {}
     for k, worst, own in zip(measured, cut, turn):
