@@ -287,21 +287,23 @@ def test_lane_table_in_tiny_chunks_is_the_whole_map_sampling_to_the_bit(tavf_xod
 
 
 def test_lane_graph_of_a_map_over_the_budget_as_a_whole(tavf_xodr):
-    """Columbus has 7.3 million lane samples at 1 m, over the budget of one allocation: the lane graph takes
-    them in chunks within it (here: the TAVF network with a ceiling of a third of its lane samples), the
-    same graph as without the lower ceiling; sampling the whole map at once is refused."""
+    """Columbus has 7.3 million samples at 1 m (one lane per section, nearly), over the budget of one
+    allocation: the lane graph takes them in chunks within it (here: the TAVF network with a ceiling of half
+    its reference-line samples), the same graph as without the lower ceiling; sampling the whole map at once
+    is refused, and so is an absurd step for the lane table."""
     from tavf_mapkit.errors import InputError
+    from tavf_mapkit.lanegraph.geometry import LaneTable
     from tavf_mapkit.lanegraph.index import LaneIndex
     from tavf_mapkit.opendrive.sampling import sample_lanes
 
     reference = LaneGraph.from_opendrive(load_opendrive(tavf_xodr))
     total = len(LaneIndex(reference).node)
-    samples, lane_samples = _sample_counts(tavf_xodr)
-    ceiling = int(0.75 * lane_samples)
-    assert samples < ceiling  # the map's samples (per road) fit, its lane samples do not
-    tight = _with_budget(load_opendrive(tavf_xodr), max_points=ceiling)
-    with pytest.raises(InputError, match="lane samples would allocate"):
+    samples, _ = _sample_counts(tavf_xodr)
+    tight = _with_budget(load_opendrive(tavf_xodr), max_points=samples // 2)
+    with pytest.raises(InputError, match="sampling every 1 m would allocate"):
         sample_lanes(tight, 1.0)
+    with pytest.raises(InputError, match=r"sampling every 0.001 m would allocate .* budget of 2.5e\+07"):
+        LaneTable.build(tight, 0.001)
     graph = LaneGraph.from_opendrive(tight)
     assert set(graph.keys) == set(reference.keys) and set(graph.graph.edges) == set(reference.graph.edges)
     assert [graph.length(k) for k in graph.keys] == [reference.length(k) for k in graph.keys]

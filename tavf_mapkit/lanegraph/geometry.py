@@ -13,6 +13,9 @@ from tavf_mapkit.opendrive.sampling import sample_lanes_at, section_chunks, sect
 #: MAX_POINTS is about that), what the table keeps 28 (row, s, x, y): sampled in chunks, a region's lane graph
 #: costs memory by its samples' few bytes (Columbus: 7.3 million samples at 1 m), not by the sampler's.
 CHUNK_SAMPLES = 500_000
+#: samples of the map's reference lines a lane table takes in all (refused beyond, like an absurd step): 25
+#: million at 1 m is 25,000 km of road, 3.4 times Columbus's 7.3 million; kept, 28 bytes a lane sample
+MAX_TABLE_SAMPLES = 25_000_000
 
 
 @dataclass(frozen=True, eq=False)
@@ -43,7 +46,7 @@ class LaneTable:
         kept_rows, kept_s, kept_xy = [], [], []
         # a chunk may overshoot its bound by one section: half the map's ceiling keeps it within that
         chunk_samples = min(chunk_samples, arrays.budget.max_points // 2)
-        for sections in section_chunks(arrays, step, chunk_samples):
+        for sections in section_chunks(arrays, step, chunk_samples, MAX_TABLE_SAMPLES):
             sampling = sample_lanes_at(odr, *section_samples(arrays, step, True, sections))
             rows = sampling.pair_lane
             if not len(rows):

@@ -95,22 +95,25 @@ class SampleBudget:
             line, element, message = self.problems[int(bad[0])]
             raise self.refuse(int(bad[0]), message, line, element)
 
-    def check(self, road_index, counts, what: str) -> None:
+    def check(self, road_index, counts, what: str, limit: float | None = None) -> None:
         """Refuse to allocate ``sum(counts)`` points of ``what`` (``counts[i]`` for road ``road_index[i]``).
 
-        ``counts`` may be floats (even inf): nothing is converted before it has been compared.
+        ``counts`` may be floats (even inf): nothing is converted before it has been compared. ``limit``: a
+        ceiling other than ``max_points``, for points that are not one allocation (a sampler working in
+        chunks keeps a few bytes of each point, not the evaluator's hundreds).
         """
         road_index = np.asarray(road_index, dtype=np.int64)
         self.check_roads(road_index)
         counts = np.asarray(counts, dtype=float)
         total = float(counts.sum()) if counts.size else 0.0
-        if total <= self.max_points:
+        limit = self.max_points if limit is None else limit
+        if total <= limit:
             return
         per_road = np.bincount(road_index, weights=np.nan_to_num(counts, nan=np.inf, posinf=1e300),
                                minlength=len(self.road_ids))
         worst = int(np.argmax(per_road))
         raise self.refuse(worst, f"{what} would allocate {total:.3g} points, more than the budget of "
-                                 f"{self.max_points:.3g} ({per_road[worst]:.3g} of them on this road)")
+                                 f"{limit:.3g} ({per_road[worst]:.3g} of them on this road)")
 
     def check_total(self, count: float, what: str, road: int) -> None:
         """Refuse one allocation of ``count`` points for ``what``, charged to road index ``road``."""

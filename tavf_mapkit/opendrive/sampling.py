@@ -123,11 +123,13 @@ def section_samples(arrays, step: float, include_end: bool = True, sections: np.
     return section, s
 
 
-def section_chunks(arrays, step: float, chunk_points: int):
+def section_chunks(arrays, step: float, chunk_points: int, max_points: float | None = None):
     """Runs of consecutive lane sections of positive length (in map order) holding about ``chunk_points`` lane
     samples each, to sample a map in bounded parts (a run ends where the bound is reached; a section bigger
     than the bound is a run of its own). The whole map's samples are refused first, as ``section_samples``
-    refuses them in one go (implausible roads, an absurd step), so chunks never hide a hostile number."""
+    refuses them in one go (implausible roads, an absurd step), so chunks never hide a hostile number:
+    against ``max_points`` when given (a caller that keeps only a few bytes of each sample), else against
+    the map's budget of one allocation."""
     if step <= 0 or not np.isfinite(step):
         raise ValueError("step must be a positive number")
     sections = np.flatnonzero(arrays.section_end - arrays.section_s0 > 0)
@@ -135,7 +137,7 @@ def section_chunks(arrays, step: float, chunk_points: int):
         return
     length = arrays.section_end[sections] - arrays.section_s0[sections]
     arrays.budget.check(arrays.section_road[sections], np.floor(length / step + 1e-9) + 1,
-                        f"sampling every {step:g} m")
+                        f"sampling every {step:g} m", max_points)
     lanes = np.bincount(arrays.lane_section, minlength=len(arrays.section_s0))[sections]
     points = (np.floor(length / step + 1e-9) + 2) * np.maximum(lanes, 1)  # + 1 for a section's end
     chunk = (np.cumsum(points) // max(int(chunk_points), 1)).astype(np.int64)
