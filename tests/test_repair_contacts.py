@@ -25,6 +25,7 @@ from tavf_mapkit.opendrive.repair_contacts import (
     REBUILT_CONNECTING_ROAD,
     REFITTED_LANE_WIDTHS,
     SPLIT_CONNECTING_ROAD,
+    end_table,
     repair_contacts,
 )
 from tavf_mapkit.opendrive.repair_controllers import MERGED_CONTROLLERS, repair_controllers
@@ -279,6 +280,30 @@ def test_only_the_widths_are_refitted_where_the_reference_line_is_right(tmp_path
     assert road.reference_line.geometries == odr.road_by_id["3"].reference_line.geometries
     distance, heading = contact_misfit(reread, "3")
     assert distance <= POSITION and heading <= HEADING
+
+
+def test_the_end_table_holds_every_roads_ends_as_the_road_api_evaluates_them(tmp_path):
+    """The repair's table of road ends (made on demand from one sampling of every road's two ends, not a dict
+    of RoadEnds: 600 MB on Columbus) gives each road's reference point, heading and every lane's borders at
+    s = 0 and s = length as the Road API puts them; a road it does not know is not in it."""
+    text = junction_document((3, 4, 0.3), [3.0, 3.5, 2.75], (25, 18, 1.2), [3.2, 3.1, 3.6],
+                             [(-1, -1), (-2, -2), (-3, -3)])
+    odr = _load(tmp_path, text)
+    table = end_table(odr)
+    for road in odr.roads:
+        for end, s in (("start", 0.0), ("end", road.length)):
+            there = table[(road.id, end)]
+            x, y, heading, _ = road.reference_line.evaluate([s])
+            assert np.hypot(there.xy[0] - x[0], there.xy[1] - y[0]) < 1e-9
+            assert abs(there.heading - heading[0]) < 1e-12
+            expected = _border_points(road, s)
+            assert there.borders.keys() == expected.keys(), (road.id, end)
+            for lane, (inner, outer) in expected.items():
+                assert np.hypot(*(there.borders[lane][0] - inner)) < 1e-9, (road.id, end, lane)
+                assert np.hypot(*(there.borders[lane][1] - outer)) < 1e-9, (road.id, end, lane)
+    assert ("1", "start") in table and ("nowhere", "start") not in table and ("1", "middle") not in table
+    with pytest.raises(KeyError):
+        table[("nowhere", "end")]
 
 
 def test_repairing_a_repaired_file_changes_nothing(tmp_path):

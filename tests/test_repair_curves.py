@@ -18,6 +18,7 @@ from click.testing import CliRunner
 from tavf_mapkit.opendrive import load_opendrive
 from tavf_mapkit.opendrive.geometry import GeometryKind, param_poly3_length
 from tavf_mapkit.opendrive.reader import loads_opendrive
+import tavf_mapkit.opendrive.repair_curves as repair_curves_module
 from tavf_mapkit.opendrive.repair_curves import (
     CURVE_AS_ARCS,
     KEPT_CURVE,
@@ -132,6 +133,49 @@ def test_repairing_the_repaired_file_changes_nothing(curves, tmp_path):
     same, repairs = repair_curves(again)
     assert repairs == [] and same is again
     assert to_xml(same) == (tmp_path / "repaired.xodr").read_bytes()
+
+
+def test_roads_whose_curves_span_batches_get_every_piece(curves, monkeypatch):
+    """Curves are fitted CURVES_PER_BATCH at a time and a road's new reference line is made once its last curve
+    is fitted. In batches of 3, roads whose curves lie in two batches still get all their
+    pieces, in order, with the same kinds, source lines and repairs as in one batch, and positions within 1e-9 m
+    (the fit's sums run over its batch, so the last bits may differ); the new rows are packed into shared
+    arrays, not one array per road (Columbus: 155,000 roads)."""
+    odr, repaired, repairs = curves
+    table = odr.arrays.geometries
+    road_of_curve = table.group[np.isin(table.kind, [int(k) for k in CURVED]) & (table.length > 0)]
+    straddle = (road_of_curve[2:-1:3] == road_of_curve[3::3]).sum()  # a road's curves 3k-1 and 3k
+    assert straddle >= 1  # roads whose curves lie in two batches of 3
+    monkeypatch.setattr(repair_curves_module, "CURVES_PER_BATCH", 3)
+    small, small_repairs = repair_curves(odr)
+    assert [(r.action, r.road, r.line, r.detail) for r in small_repairs] == \
+        [(r.action, r.road, r.line, r.detail) for r in repairs]
+    for old, one, three in zip(odr.roads, repaired.roads, small.roads):
+        a, b = one.reference_line, three.reference_line
+        assert a.rows.shape == b.rows.shape, one.id
+        assert np.array_equal(a.rows[:, 5], b.rows[:, 5]) and np.array_equal(a.lines, b.lines), one.id
+        assert np.abs(a.rows - b.rows).max(initial=0.0) < 1e-9, one.id
+        assert a.extra_xml == b.extra_xml
+    changed = [road.reference_line.rows for road, old in zip(small.roads, odr.roads)
+               if road.reference_line is not old.reference_line]
+    assert len(changed) > 10 and len({id(rows.base) for rows in changed}) < len(changed) / 4
+
+
+def test_a_curves_unknown_children_go_with_its_first_piece():
+    """userData of a paramPoly3 <geometry> stays with the first of its pieces, once, and the line before keeps
+    its own."""
+    geometries = (
+        '<geometry s="0" x="0" y="0" hdg="0" length="10"><line/><userData code="a" value="1"/></geometry>'
+        '<geometry s="10" x="10" y="0" hdg="0" length="30"><paramPoly3 aU="0" bU="1" cU="0" dU="0" aV="0" '
+        'bV="0" cV="0.004" dV="-0.0001" pRange="arcLength"/><userData code="b" value="2"/></geometry>')
+    odr = loads_opendrive(document(road_xml(geometries, 40.0)))
+    repaired, repairs = repair_curves(odr)
+    assert [r.action for r in repairs] == [CURVE_AS_ARCS]
+    line = repaired.roads[0].reference_line
+    assert len(line) > 3 and line.extra_xml.keys() == {0, 1}
+    assert b'code="a"' in line.extra_xml[0][0] and b'code="b"' in line.extra_xml[1][0]
+    xml = to_xml(repaired)
+    assert xml.count(b'code="b"') == 1 and xml.count(b"<arc ") == int((line.rows[:, 5] == 1).sum())
 
 
 def test_poly3_and_a_curve_a_hair_longer_than_its_length_become_arcs():

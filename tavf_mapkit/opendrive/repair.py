@@ -27,7 +27,7 @@ CUT_LENGTH = "cut length"
 DROPPED_ROAD = "dropped road"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)  # slotted: a city's build makes 300,000 of them
 class Repair:
     action: str  # DROPPED_VERTICES, CUT_LENGTH or DROPPED_ROAD
     road: str

@@ -98,7 +98,42 @@ class RoadEnd:
     borders: dict  # lane id -> (inner xy, outer xy)
 
 
-def end_table(odr) -> dict:
+class EndTable:
+    """(road id, "start" | "end") -> RoadEnd, made on demand from arrays of the samples at every road's ends.
+
+    Not a dict of RoadEnds: on a city (Columbus: 155,000 roads) a RoadEnd per road end, each with its own small
+    arrays and a dict of border points per lane, took 600 MB at once; the arrays they are made of take 30 MB.
+    Lookups give the same values as the RoadEnds would have held (a road id that occurs twice: its last road)."""
+
+    def __init__(self, index: dict, xy, heading, z, grade, lateral, lane_offset, pair_start, lane_id, inner, outer):
+        self._index = index  # road id -> k: its start is sample 2k, its end 2k + 1
+        self._xy, self._heading, self._z, self._grade = xy, heading, z, grade
+        self._lateral, self._lane_offset = lateral, lane_offset
+        self._pair_start = pair_start  # sample -> its first pair in (lane_id, inner, outer); pairs by sample
+        self._lane_id, self._inner, self._outer = lane_id, inner, outer
+
+    def _sample(self, key) -> int | None:
+        road_id, end = key
+        k = self._index.get(road_id)
+        if k is None or end not in ("start", "end"):
+            return None
+        return 2 * k + (end == "end")
+
+    def __contains__(self, key) -> bool:
+        return self._sample(key) is not None
+
+    def __getitem__(self, key) -> RoadEnd:
+        k = self._sample(key)
+        if k is None:
+            raise KeyError(key)
+        lo, hi = int(self._pair_start[k]), int(self._pair_start[k + 1])
+        borders = {lane: (self._inner[j], self._outer[j])
+                   for j, lane in zip(range(lo, hi), self._lane_id[lo:hi].tolist())}
+        return RoadEnd(self._xy[k].copy(), float(self._heading[k]), float(self._z[k]), float(self._grade[k]),
+                       self._lateral[k], float(self._lane_offset[k]), borders)
+
+
+def end_table(odr) -> EndTable:
     """(road id, "start" | "end") -> RoadEnd for every road with lanes, in one vectorised pass: the first lane
     section at s = 0 and the last at the road's length."""
     from tavf_mapkit.opendrive.sampling import sample_lanes_at
@@ -106,7 +141,7 @@ def end_table(odr) -> dict:
     arrays = odr.arrays
     section_road = arrays.section_road
     if not len(section_road):
-        return {}
+        return EndTable({}, *(np.zeros(0),) * 6, np.zeros(1, dtype=np.int64), *(np.zeros(0),) * 3)
     roads = np.unique(section_road)
     first = np.searchsorted(section_road, roads, side="left")
     last = np.searchsorted(section_road, roads, side="right") - 1
@@ -114,19 +149,15 @@ def end_table(odr) -> dict:
     sections = np.column_stack([first, last]).ravel()  # grouped by section: a road's sections ascend
     s = np.column_stack([np.zeros(len(roads)), lengths]).ravel()
     sampling = sample_lanes_at(odr, sections, s)
-    lateral = sampling._frame[0][:, :2]
-    inner = sampling.points_at(sampling.t_inner)[:, :2]
-    outer = sampling.points_at(sampling.t_outer)[:, :2]
-    borders = [{} for _ in range(len(s))]
-    for k, (sample, lane) in enumerate(zip(sampling.pair_sample.tolist(), sampling.lane_id.tolist())):
-        borders[sample][int(lane)] = (inner[k], outer[k])
-    table = {}
-    for k in range(len(s)):
-        road = odr.roads[roads[k // 2]]
-        table[(road.id, "start" if k % 2 == 0 else "end")] = RoadEnd(
-            np.array([sampling.ref_x[k], sampling.ref_y[k]]), float(sampling.heading[k]), float(sampling.ref_z[k]),
-            float(sampling.slope[k]), lateral[k], float(sampling.lane_offset[k]), borders[k])
-    return table
+    lateral = np.ascontiguousarray(sampling._frame[0][:, :2])
+    by_sample = np.argsort(sampling.pair_sample, kind="stable")  # pairs come lane by lane: regroup by sample
+    inner = sampling.points_at(sampling.t_inner)[by_sample, :2]
+    outer = sampling.points_at(sampling.t_outer)[by_sample, :2]
+    pair_start = np.searchsorted(sampling.pair_sample[by_sample], np.arange(len(s) + 1))
+    index = {odr.roads[road].id: k for k, road in enumerate(roads.tolist())}
+    return EndTable(index, np.column_stack([sampling.ref_x, sampling.ref_y]), sampling.heading, sampling.ref_z,
+                    sampling.slope, lateral, sampling.lane_offset, pair_start, sampling.lane_id[by_sample],
+                    inner, outer)
 
 
 def repair_contacts(odr):

@@ -42,11 +42,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from tavf_mapkit.opendrive.geometry import ELEMENT_NAMES, Geometry, GeometryKind
-from tavf_mapkit.opendrive.refline import ReferenceLine
+from tavf_mapkit.opendrive.geometry import ELEMENT_NAMES, GEOMETRY_COLUMNS, GeometryKind
+from tavf_mapkit.opendrive.refline import ReferenceLine, RowPacker
 from tavf_mapkit.opendrive.repair import Repair
 from tavf_mapkit.opendrive.repair_lengths import TOLERANCE as LENGTH_TOLERANCE
-from tavf_mapkit.opendrive.repair_redundant import redundant_lines, repair_redundant
+from tavf_mapkit.opendrive.repair_redundant import EQUATION_TOLERANCE, redundant_lines, repair_redundant
 from tavf_mapkit.progress import Progress, Report, no_report, reporter
 
 #: Repair.action of this repair: a curve replaced, and one kept (with why)
@@ -102,50 +102,108 @@ def repair_curves(odr, tolerance: float = TOLERANCE, max_pieces: int = MAX_PIECE
     used = np.minimum(table.length[rows], following - table.s[rows])
     lever = _widest_offsets(odr, np.unique(table.group[rows]), report=reporter(progress, "lane sections"))
     widest = np.array([lever.get(int(g), 0.0) for g in table.group[rows]])
-    fits = []  # in batches of curves: memory bounded by the batch, not the map (Maribor: 6 GB in one go)
+    # in batches of curves: memory bounded by the batch, not the map (Maribor: 6 GB in one go). A road's new
+    # reference line is made as soon as its last curve is fitted, as rows packed with other roads' (RowPacker):
+    # Columbus's 466,000 curves as ArcChains at once, and their 5.1 million pieces as Geometry records, took GBs
+    roads, repairs, packer = list(odr.roads), [], RowPacker()
+    pending: dict = {}  # road index -> {geometry index in the road: fit}, until the road's last curve is fitted
+    maybe_redundant = False
     report = reporter(progress, "curves")
     for first in range(0, len(rows), CURVES_PER_BATCH):
         report(first, len(rows))
         batch = slice(first, first + CURVES_PER_BATCH)
-        fits += fit_curves(table, rows[batch], used[batch], widest[batch], tolerance, max_pieces)
+        fits = fit_curves(table, rows[batch], used[batch], widest[batch], tolerance, max_pieces)
+        for row, fit in zip(rows[batch].tolist(), fits):
+            index = int(table.group[row])
+            pending.setdefault(index, {})[row - int(starts[index])] = fit
+        del fits
+        unfinished = int(table.group[rows[first + CURVES_PER_BATCH]]) if first + CURVES_PER_BATCH < len(rows) \
+            else None  # the road of the next batch's first curve may have curves in this batch too
+        for index in [index for index in pending if index != unfinished]:
+            road = roads[index]
+            line, made = _repaired_line(road, pending.pop(index), tolerance)
+            repairs += made
+            if line is not None:
+                packer.add(line)
+                roads[index] = replace(road, reference_line=line)
+            maybe_redundant = maybe_redundant or redundant_lines_in(roads[index].reference_line)
     report(len(rows), len(rows))
-
-    roads, repairs = list(odr.roads), []
-    by_road: dict = {}
-    for k, row in enumerate(rows.tolist()):
-        by_road.setdefault(int(table.group[row]), {})[row - int(starts[table.group[row]])] = fits[k]
-    for index, fit_of in by_road.items():
-        road = roads[index]
-        geometries, replaced = [], []
-        for i, geometry in enumerate(road.reference_line.geometries):
-            fit = fit_of.get(i)
-            if isinstance(fit, ArcChain):
-                geometries += _pieces(geometry, fit)
-                replaced.append(geometry)
-                continue
-            geometries.append(geometry)
-            if fit is not None:
-                repairs.append(Repair(KEPT_CURVE, road.id, geometry.line,
-                                      f"{ELEMENT_NAMES[geometry.kind]} at s={geometry.s:.6g} kept: {fit}"))
-        if not replaced:
-            continue
-        roads[index] = replace(road, reference_line=ReferenceLine(tuple(geometries)))
-        arcs = sum(g.kind is GeometryKind.ARC for g in geometries)
-        lines = sum(g.kind is GeometryKind.LINE for g in geometries) - sum(
-            g.kind is GeometryKind.LINE for g in road.reference_line.geometries)
-        names = " and ".join(sorted({ELEMENT_NAMES[g.kind] for g in replaced}))
-        repairs.append(Repair(CURVE_AS_ARCS, road.id, replaced[0].line,
-                              f"{len(replaced)} {names} as {arcs} arcs and {lines:+d} lines "
-                              f"(lane borders within {tolerance * 1000:g} mm of the curve's)"))
+    packer.flush()
     if not any(r.action == CURVE_AS_ARCS for r in repairs):
         return odr, repairs
     repaired = OpenDriveMap(odr.header, tuple(roads), odr.junctions, odr.controllers, odr.source, odr.warnings,
                             odr.extra_xml)
-    if any(redundant_lines(roads[index].reference_line.geometries) for index in by_road):
+    if maybe_redundant:
         # a curve that became a line beside a line of its heading is one line with it (ASAM: redundant lines)
         repaired, merged = repair_redundant(repaired)
         repairs += merged
     return repaired, repairs
+
+
+def _repaired_line(road, fit_of: dict, tolerance: float) -> tuple[ReferenceLine | None, list]:
+    """(the road's reference line with its fitted curves as their pieces, or None when none was replaced;
+    repairs): ``fit_of`` maps a geometry's index in the road to its ArcChain, or to why it was kept. Rows in,
+    rows out: no Geometry record per piece."""
+    line = road.reference_line
+    rows, lines, extra_xml = line.rows, line.lines, line.extra_xml or {}
+    blocks, block_lines, new_extra, replaced, repairs = [], [], {}, [], []
+    count = 0
+    for i in range(len(rows)):
+        fit = fit_of.get(i)
+        source = None if lines[i] < 0 else int(lines[i])
+        if isinstance(fit, ArcChain):
+            block = _chain_rows(rows[i], fit)
+            replaced.append(i)
+        else:
+            block = rows[i:i + 1]
+            if fit is not None:
+                kind = GeometryKind(int(rows[i, 5]))
+                repairs.append(Repair(KEPT_CURVE, road.id, source,
+                                      f"{ELEMENT_NAMES[kind]} at s={float(rows[i, 0]):.6g} kept: {fit}"))
+        if extra_xml.get(i):
+            new_extra[count] = extra_xml[i]  # a replaced curve's unknown children go with its first piece
+        blocks.append(block)
+        block_lines.append(np.full(len(block), lines[i], dtype=np.int32))
+        count += len(block)
+    if not replaced:
+        return None, repairs
+    new_rows = np.concatenate(blocks)
+    kinds = new_rows[:, 5]
+    arcs = int(np.count_nonzero(kinds == int(GeometryKind.ARC)))
+    more_lines = int(np.count_nonzero(kinds == int(GeometryKind.LINE))) - int(
+        np.count_nonzero(rows[:, 5] == int(GeometryKind.LINE)))
+    names = " and ".join(sorted({ELEMENT_NAMES[GeometryKind(int(rows[i, 5]))] for i in replaced}))
+    first = None if lines[replaced[0]] < 0 else int(lines[replaced[0]])
+    repairs.append(Repair(CURVE_AS_ARCS, road.id, first,
+                          f"{len(replaced)} {names} as {arcs} arcs and {more_lines:+d} lines "
+                          f"(lane borders within {tolerance * 1000:g} mm of the curve's)"))
+    return ReferenceLine.from_rows(new_rows, np.concatenate(block_lines), new_extra), repairs
+
+
+def _chain_rows(row: np.ndarray, chain: ArcChain) -> np.ndarray:
+    """The planView rows (GEOMETRY_COLUMNS) of a chain, at the curve's s (``row``): a piece that turns less than
+    STRAIGHT over its length is a line, the others arcs."""
+    k, length = chain.curvature, chain.length
+    straight = (np.abs(k) * length <= STRAIGHT) & (0.5 * np.abs(k) * length * length <= STRAIGHT)
+    rows = np.zeros((len(k), GEOMETRY_COLUMNS))
+    rows[:, 0] = row[0] + chain.ds
+    rows[:, 1], rows[:, 2], rows[:, 3], rows[:, 4] = chain.x, chain.y, chain.hdg, length
+    rows[:, 5] = np.where(straight, int(GeometryKind.LINE), int(GeometryKind.ARC))
+    rows[:, 6] = np.where(straight, 0.0, k)
+    return rows
+
+
+def redundant_lines_in(line: ReferenceLine) -> bool:
+    """Whether ``redundant_lines`` finds any in the reference line; its own test, asked only where two
+    consecutive lines' headings are near (not one Geometry record per row of every line)."""
+    rows = line.rows
+    if len(rows) < 2:
+        return False
+    lines = rows[:, 5] == int(GeometryKind.LINE)
+    near = np.abs(_wrap(rows[1:, 3] - rows[:-1, 3])) < 10.0 * EQUATION_TOLERANCE
+    if not (lines[1:] & lines[:-1] & near).any():
+        return False
+    return bool(redundant_lines(line.geometries))
 
 
 def _widest_offsets(odr, road_indices: np.ndarray, step: float = 1.0, report: Report = no_report) -> dict:
@@ -179,18 +237,6 @@ class ArcChain:
     hdg: np.ndarray
     curvature: np.ndarray
     length: np.ndarray
-
-
-def _pieces(geometry, chain: ArcChain) -> list:
-    """The <geometry> records of a chain, at the curve's s."""
-    pieces = []
-    for ds, x, y, hdg, k, length in zip(chain.ds.tolist(), chain.x.tolist(), chain.y.tolist(),
-                                        chain.hdg.tolist(), chain.curvature.tolist(), chain.length.tolist()):
-        straight = abs(k) * length <= STRAIGHT and 0.5 * abs(k) * length * length <= STRAIGHT
-        pieces.append(Geometry(
-            geometry.s + ds, x, y, hdg, length, GeometryKind.LINE if straight else GeometryKind.ARC,
-            () if straight else (k,), geometry.line, geometry.extra_xml if not pieces else ()))
-    return pieces
 
 
 def _wrap(angle):
