@@ -111,7 +111,7 @@ class RowPacker:
             self.flush()
 
     def flush(self) -> None:
-        if len(self.pending) > 1:
+        if self.pending:  # one line too: its rows may be a view that keeps a larger table alive
             packed = np.concatenate([line.rows for line in self.pending])
             start = 0
             for line in self.pending:

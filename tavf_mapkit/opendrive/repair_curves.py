@@ -105,7 +105,10 @@ def repair_curves(odr, tolerance: float = TOLERANCE, max_pieces: int = MAX_PIECE
     # in batches of curves: memory bounded by the batch, not the map (Maribor: 6 GB in one go). A road's new
     # reference line is made as soon as its last curve is fitted, as rows packed with other roads' (RowPacker):
     # Columbus's 466,000 curves as ArcChains at once, and their 5.1 million pieces as Geometry records, took GBs
+    # Every road's line goes into the packs, in road order, those without curves too: theirs are views of the
+    # table of the map given (odr.arrays), which would otherwise stay alive with them after that map is gone
     roads, repairs, packer = list(odr.roads), [], RowPacker()
+    packed = 0  # roads[:packed] are packed
     pending: dict = {}  # road index -> {geometry index in the road: fit}, until the road's last curve is fitted
     maybe_redundant = False
     report = reporter(progress, "curves")
@@ -124,10 +127,14 @@ def repair_curves(odr, tolerance: float = TOLERANCE, max_pieces: int = MAX_PIECE
             line, made = _repaired_line(road, pending.pop(index), tolerance)
             repairs += made
             if line is not None:
-                packer.add(line)
                 roads[index] = replace(road, reference_line=line)
+            for before in range(packed, index + 1):
+                packer.add(roads[before].reference_line)
+            packed = index + 1
             maybe_redundant = maybe_redundant or redundant_lines_in(roads[index].reference_line)
     report(len(rows), len(rows))
+    for before in range(packed, len(roads)):
+        packer.add(roads[before].reference_line)
     packer.flush()
     if not any(r.action == CURVE_AS_ARCS for r in repairs):
         return odr, repairs

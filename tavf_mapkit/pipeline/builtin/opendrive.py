@@ -122,18 +122,16 @@ def _repaired_netconvert_output(context: BuildContext):
     from tavf_mapkit.opendrive.repair import DROPPED_ROAD
     from tavf_mapkit.opendrive.writer import write_opendrive
 
-    odr = context.opendrive()
-    repaired, repairs = odr, []
+    repaired, repairs = context.opendrive(), []
+    roads = len(repaired.roads)
+    # netconvert's map is not held while the repairs run: each step's map goes when the next one's is made, so
+    # the roads a repair replaced, and the map-wide tables the repairs built of them, are not held beside the
+    # repaired map's (Columbus: 5 million arcs and lines where netconvert wrote 0.5 million curves)
     for step in _repair_steps(context):
         repaired, made = step(repaired)
         repairs += made
     if not repairs:
-        return odr, []
-    # netconvert's map goes before the repaired one is written and summarised: the roads a repair replaced, and
-    # the map-wide tables the repairs built of it, are not held beside the repaired map's (Columbus: 5 million
-    # arcs and lines where netconvert wrote 0.5 million curves)
-    roads = len(odr.roads)
-    del odr
+        return repaired, []  # every step returned the map it was given
     return_freed_memory()
     dropped = [repair for repair in repairs if repair.action == DROPPED_ROAD]
     xodr = context.artifacts["xodr"]
