@@ -37,3 +37,24 @@ def test_points_off_the_road_report_their_distance():
     outermost = np.max(np.abs(sampling.t_outer))
     location = LaneLocator(odr).locate([100.0], [outermost + 7.0])
     assert abs(location.distance[0] - 7.0) < 1e-6
+
+
+def test_a_lane_graphs_locator_is_the_sampled_one(tavf_xodr):
+    """The twin's metrics locate the ego through its lane graph's samples (a region's lanes are more than one
+    allocation may sample at once): the same tree and the same locations as sampling the map again."""
+    from tavf_mapkit.lanegraph import LaneGraph
+
+    odr = load_opendrive(tavf_xodr)
+    graph = LaneGraph.from_opendrive(odr)
+    sampled = LaneLocator(odr, step=1.0, lane_types={"driving"})
+    shared = graph.locator()
+    np.testing.assert_array_equal(shared.tree.data, sampled.tree.data)
+    np.testing.assert_array_equal(shared.lane_row, sampled.lane_row)
+    np.testing.assert_array_equal(shared.s, sampled.s)
+    rng = np.random.default_rng(3)
+    low, high = sampled.tree.data.min(axis=0), sampled.tree.data.max(axis=0)
+    x, y = rng.uniform(low[0], high[0], 2000), rng.uniform(low[1], high[1], 2000)
+    x[:1000], y[:1000] = sampled.tree.data[::len(sampled.s) // 1000][:1000].T + rng.normal(0, 2, (2, 1000))
+    a, b = shared.locate(x, y, candidates=16), sampled.locate(x, y, candidates=16)
+    for field in ("road_index", "section_index", "lane_id", "s", "t", "distance"):
+        np.testing.assert_array_equal(getattr(a, field), getattr(b, field))

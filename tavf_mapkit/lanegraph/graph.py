@@ -39,12 +39,14 @@ class LaneGraph:
     """Build with :meth:`from_opendrive`; the networkx graph is ``self.graph``."""
 
     def __init__(self, odr, graph: nx.DiGraph, lane_rows: dict[LaneKey, int], forward: dict[LaneKey, bool],
-                 table: LaneTable):
+                 table: LaneTable, step: float = 1.0, lane_types: frozenset[str] = frozenset({"driving"})):
         self.odr = odr
         self.graph = graph
         self._rows = lane_rows
         self._forward = forward
         self._table = table
+        self.step = step  # m between the table's centre-line samples
+        self.lane_types = lane_types
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -93,7 +95,7 @@ class LaneGraph:
                 if forward.get(neighbour) is ahead and lane_change_allowed(section, key.lane_id, neighbour_id,
                                                                             middle):
                     graph.add_edge(key, neighbour, kind=kind, weight=float(lane_change_cost))
-        return cls(odr, graph, rows, forward, table)
+        return cls(odr, graph, rows, forward, table, step, frozenset(types))
 
     # ------------------------------------------------------------------ queries
     def __contains__(self, key) -> bool:
@@ -191,6 +193,15 @@ class LaneGraph:
         if not components:
             return frozenset()
         return frozenset(max(components, key=lambda c: (sum(self.length(k) for k in c), len(c), min(c))))
+
+    def locator(self):
+        """A ``LaneLocator`` over the graph's lane-centre samples: ``LaneLocator(odr, step, lane_types)`` with
+        the graph's step and lane types gives the same, but samples the whole map again at once (on a region
+        more than one allocation may hold)."""
+        from tavf_mapkit.opendrive.locate import LaneLocator
+
+        table = self._table
+        return LaneLocator.from_samples(self.odr, table.sample_row, table.sample_s, table.sample_xy)
 
     @cached_property
     def total_length(self) -> float:

@@ -39,6 +39,15 @@ class LaneLocator:
         self.s = sampling.s[keep]
         self.tree = cKDTree(centre[:, :2])
 
+    @classmethod
+    def from_samples(cls, odr, lane_row: np.ndarray, s: np.ndarray, xy: np.ndarray) -> LaneLocator:
+        """A locator over lane-centre samples someone already has (lane-table row, road s, plan-view point;
+        a lane graph's): the locator the constructor builds from the same samples, without sampling again."""
+        locator = cls.__new__(cls)
+        locator.odr, locator.lane_row, locator.s = odr, lane_row, s
+        locator.tree = cKDTree(xy)
+        return locator
+
     def locate(self, x, y, candidates: int = 8) -> Location:
         arrays = self.odr.arrays
         q = np.column_stack([np.atleast_1d(np.asarray(x, dtype=float)), np.atleast_1d(np.asarray(y, dtype=float))])

@@ -8,6 +8,7 @@ seed and the name, so adding a sensor never changes the route another component 
 
 from __future__ import annotations
 
+import gc
 import logging
 import time
 import zlib
@@ -21,6 +22,12 @@ from twin.session.config import DriveConfig
 from twin.session.hooks import EgoPose, Frame, SessionHook
 
 log = logging.getLogger(__name__)
+
+
+def freeze_long_lived() -> None:
+    """Exempt every object alive now from the cyclic garbage collector's scans (``gc.freeze``)."""
+    gc.collect()
+    gc.freeze()
 
 
 class Session:
@@ -43,6 +50,9 @@ class Session:
         self.build = Build.open(config.map)
         self.build_dir = self.build.path
         self.odr = load_opendrive(self.build.xodr)
+        # a region's map is millions of long-lived objects: the cyclic collector would walk them again and
+        # again as the lane graph and routes allocate (seconds of a region's start); refcounting still frees
+        freeze_long_lived()
         self.georeference, fallback = georeference_for_driving(self.odr)
         if fallback:
             log.warning("%s has no geoReference: lat/lon are placed as CARLA places such maps, local (0, 0) at "
@@ -66,6 +76,7 @@ class Session:
             self.close()
             self.output.discard()
             raise
+        freeze_long_lived()  # the lane graph, lines and routes, for the loop's sake
         self.setup_seconds = time.perf_counter() - started
 
     # ------------------------------------------------------------------ API for hooks
@@ -183,6 +194,7 @@ class Session:
     def close(self) -> None:
         if self.world is not None:
             self.world.close()
+        gc.unfreeze()  # what this session froze may be collected again (many sessions run in one process)
 
     # ------------------------------------------------------------------ hooks
     def _call_hooks(self, method: str, *args) -> list:
