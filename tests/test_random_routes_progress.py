@@ -303,9 +303,9 @@ def test_bends_too_gentle_to_matter_are_not_measured_but_decide_the_same():
 
 
 def test_lane_lines_and_bends_of_a_region_in_small_batches_are_the_same(berlin_build, monkeypatch):
-    """A region's lane lines are evaluated and measured BATCH_POINTS points at a time (all at once, Columbus's
-    7 million points took GBs); in batches of about 500 points Berlin's lines, dropped lanes and steps are
-    those of one batch, to the bit."""
+    """A region's lane lines and steps are evaluated and measured BATCH_POINTS points at a time (all at once,
+    Columbus's 7 million points took GBs); in batches of about 500 points Berlin's lines, dropped lanes and
+    steps are those of one batch, to the bit."""
     import twin.map.lanelines as lanelines
     from twin.planning.drivable import lane_transitions
 
@@ -316,6 +316,8 @@ def test_lane_lines_and_bends_of_a_region_in_small_batches_are_the_same(berlin_b
     assert sum(len(whole[k].points) for k in keys) < lanelines.BATCH_POINTS  # one batch
     undrivable = undrivable_lanes(graph, whole)
     strict = undrivable_lanes(graph, whole, max_cut=0.05)  # bends measured and dropped, not only bounded
+    steps = lane_transitions(graph, whole, undrivable)
+    strict_steps = lane_transitions(graph, whole, undrivable, max_cut=0.05)
     monkeypatch.setattr(lanelines, "BATCH_POINTS", 500)
     assert len(list(lanelines.lane_batches(graph, keys, 1.0))) > 10
     batched = LaneLines(graph)
@@ -324,4 +326,5 @@ def test_lane_lines_and_bends_of_a_region_in_small_batches_are_the_same(berlin_b
     for key in keys:
         assert np.array_equal(batched[key].points, whole[key].points), key
         assert np.array_equal(batched[key].along, whole[key].along), key
-    assert lane_transitions(graph, batched, undrivable) == lane_transitions(graph, whole, undrivable)
+    assert lane_transitions(graph, batched, undrivable) == steps
+    assert lane_transitions(graph, batched, undrivable, max_cut=0.05) == strict_steps and strict_steps.dropped

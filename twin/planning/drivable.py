@@ -36,6 +36,7 @@ from tavf_mapkit.lanegraph import LaneGraph, LaneKey
 from tavf_mapkit.mesh.exact import run_cumsum
 from tavf_mapkit.mesh.swept_path import wheelbase_curvature
 from twin.control.pid import CARLA_LIMITS, ActuatorLimits
+from twin.map import lanelines
 from twin.map.lanelines import LaneLines, lane_batches
 from twin.planning.buffer import JOIN_GAP, join_cut, join_gap, straight_cut
 from twin.planning.chunks import DEGENERATE_LANE
@@ -98,7 +99,6 @@ def worst_cuts(lane: np.ndarray, points: np.ndarray, radius: float, limit: float
     turns too little to cut by more than ``limit`` (see the module docstring), that bound instead, at most
     ``limit``: only the comparison with ``limit`` is exact for those."""
     run = np.cumsum(np.r_[True, lane[1:] != lane[:-1]]) - 1
-    count = run[-1] + 1 if len(run) else 0
     # corner_cut caps a window's heading change at 0.9 pi; a thousandth below the limit for rounding
     turning = np.minimum(total_turning(lane, points), 0.9 * np.pi)
     worst = radius * (1.0 / np.cos(0.5 * turning) - 1.0)
@@ -204,10 +204,18 @@ def lane_transitions(graph: LaneGraph, lines: LaneLines, undrivable: dict[LaneKe
     candidates = sorted(set(candidates))
     if not candidates:
         return result
-    # the polyline of every step, all measured at once
-    polylines = [_step_polyline(lines, a, b) for a, b in candidates]
-    lane = np.repeat(np.arange(len(candidates)), [len(p) for p in polylines])
-    cut = worst_cuts(lane, np.concatenate(polylines), radius, max_cut)
+    # the polyline of every step, measured many at once: in batches of about BATCH_POINTS points (a region
+    # has millions), each step on its own, so batches give the same numbers
+    cut = []
+    polylines, points = [], 0
+    for k, (a, b) in enumerate(candidates):
+        polylines.append(_step_polyline(lines, a, b))
+        points += len(polylines[-1])
+        if points >= lanelines.BATCH_POINTS or k == len(candidates) - 1:
+            lane = np.repeat(np.arange(len(polylines)), [len(p) for p in polylines])
+            cut.append(worst_cuts(lane, np.concatenate(polylines), radius, max_cut))
+            polylines, points = [], 0
+    cut = np.concatenate(cut)
     for (a, b), worst in zip(candidates, cut):
         if abs(_wrap(_headings(lines, b)[0] - _headings(lines, a)[1])) > U_TURN:
             result.dropped[a, b] = "u-turn"
