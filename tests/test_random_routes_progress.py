@@ -328,3 +328,59 @@ def test_lane_lines_and_bends_of_a_region_in_small_batches_are_the_same(berlin_b
         assert np.array_equal(batched[key].along, whole[key].along), key
     assert lane_transitions(graph, batched, undrivable) == steps
     assert lane_transitions(graph, batched, undrivable, max_cut=0.05) == strict_steps and strict_steps.dropped
+
+
+def _without_loops_one_line(points, window=40):
+    """The loop cut of one line as LaneLines made it line by line (the reference for the batched one)."""
+    m = len(points) - 1
+    if m < 3:
+        return points
+    a, d = points[:-1, :2], np.diff(points[:, :2], axis=0)
+    heading = np.arctan2(d[:, 1], d[:, 0])
+    if np.sum(np.abs((np.diff(heading) + np.pi) % (2 * np.pi) - np.pi)) < np.pi:
+        return points
+    hits = []
+    for gap in range(2, min(window, m - 1) + 1):
+        for i in range(m - gap):
+            j = i + gap
+            denominator = d[i, 0] * d[j, 1] - d[i, 1] * d[j, 0]
+            if not abs(denominator) > 1e-12:
+                continue
+            r = a[j] - a[i]
+            f = (r[0] * d[j, 1] - r[1] * d[j, 0]) / denominator
+            g = (r[0] * d[i, 1] - r[1] * d[i, 0]) / denominator
+            if 0 <= f <= 1 and 0 <= g <= 1:
+                hits.append((i, j, f))
+    pieces, done = [], 0
+    for first in sorted({h[0] for h in hits}):
+        if first < done:
+            continue
+        _, j, f = max((h for h in hits if h[0] == first), key=lambda h: h[1])
+        pieces.append(points[done:first + 1])
+        pieces.append((points[first] + f * (points[first + 1] - points[first]))[None, :])
+        done = j + 1
+    pieces.append(points[done:])
+    return np.concatenate(pieces)
+
+
+def test_loops_of_many_lines_cut_at_once_are_each_lines_own_cuts():
+    """LaneLines cuts the loops of a region's folded lines in one pass per segment gap; every line comes out
+    as cut on its own: loops, nested loops, figure eights, lines too short or turning too little to cross."""
+    from twin.map.lanelines import lines_without_loops
+
+    rng = np.random.default_rng(11)
+    lines = []
+    for k in range(400):
+        n = int(rng.integers(2, 70))
+        turn = rng.normal(0.0, [0.05, 0.4, 1.2, 2.5][k % 4], n)
+        heading = np.cumsum(turn)
+        step = rng.uniform(0.2, 2.0, n)
+        xy = np.cumsum(np.column_stack([step * np.cos(heading), step * np.sin(heading)]), axis=0)
+        lines.append(np.column_stack([xy, rng.uniform(0, 1, n)]))
+    batched = lines_without_loops(lines)
+    changed = 0
+    for line, cut in zip(lines, batched):
+        expected = _without_loops_one_line(line)
+        assert np.array_equal(cut, expected)
+        changed += len(expected) != len(line)
+    assert changed > 20

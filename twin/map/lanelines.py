@@ -55,16 +55,28 @@ def without_loops(points: np.ndarray, window: int = LOOP_WINDOW) -> np.ndarray:
     """The polyline (n, 3) with every loop cut out: where segment i crosses a later segment j (at most
     ``window`` segments on, in plan view), the points between them are replaced by the crossing point
     (the outermost crossing of each i; height interpolated along segment i)."""
-    m = len(points) - 1  # segments
-    if m < 3:
-        return points
-    a, d = points[:-1, :2], np.diff(points[:, :2], axis=0)
-    heading = np.arctan2(d[:, 1], d[:, 0])
-    if np.sum(np.abs((np.diff(heading) + np.pi) % (2 * np.pi) - np.pi)) < np.pi:
-        return points  # a line must turn by half a circle at least to cross itself
-    found_i, found_j, found_f = [], [], []
-    for gap in range(2, min(window, m - 1) + 1):
-        i = np.arange(m - gap)
+    return lines_without_loops([points], window)[0]
+
+
+def lines_without_loops(lines: list[np.ndarray], window: int = LOOP_WINDOW) -> list[np.ndarray]:
+    """``without_loops`` of many polylines, their crossings found in one pass per gap (every crossing test
+    is one pair of segments of one line: the same lines, to the bit)."""
+    lines = list(lines)
+    may_cross = [k for k, points in enumerate(lines) if _turns_half_a_circle(points)]
+    if not may_cross:
+        return lines
+    segments = [lines[k][:, :2] for k in may_cross]
+    a = np.concatenate([p[:-1] for p in segments])
+    d = np.concatenate([np.diff(p, axis=0) for p in segments])
+    counts = np.array([len(p) - 1 for p in segments])
+    owner = np.repeat(np.arange(len(segments)), counts)
+    first = np.cumsum(counts) - counts
+    found_owner, found_i, found_j, found_f = [], [], [], []
+    for gap in range(2, window + 1):
+        i = np.arange(len(owner) - gap)
+        i = i[owner[i] == owner[i + gap]]  # both segments on one line (gap < its segment count)
+        if not len(i):
+            break
         j = i + gap
         denominator = d[i, 0] * d[j, 1] - d[i, 1] * d[j, 0]
         r = a[j] - a[i]
@@ -72,12 +84,34 @@ def without_loops(points: np.ndarray, window: int = LOOP_WINDOW) -> np.ndarray:
         f = (r[:, 0] * d[j, 1] - r[:, 1] * d[j, 0]) / safe  # along segment i
         g = (r[:, 0] * d[i, 1] - r[:, 1] * d[i, 0]) / safe  # along segment j
         hit = (np.abs(denominator) > 1e-12) & (f >= 0) & (f <= 1) & (g >= 0) & (g <= 1)
-        found_i.append(i[hit])
-        found_j.append(j[hit])
+        found_owner.append(owner[i[hit]])
+        found_i.append(i[hit] - first[owner[i[hit]]])
+        found_j.append(j[hit] - first[owner[i[hit]]])
         found_f.append(f[hit])
-    i, j, f = np.concatenate(found_i), np.concatenate(found_j), np.concatenate(found_f)
-    if not len(i):
-        return points
+    if not found_owner:
+        return lines
+    owner, i, j, f = (np.concatenate(x) for x in (found_owner, found_i, found_j, found_f))
+    order = np.argsort(owner, kind="stable")
+    owner, i, j, f = owner[order], i[order], j[order], f[order]
+    bounds = np.searchsorted(owner, np.arange(len(segments) + 1))
+    for line, (lo, hi) in enumerate(zip(bounds[:-1].tolist(), bounds[1:].tolist())):
+        if hi > lo:
+            k = may_cross[line]
+            lines[k] = _cut_loops(lines[k], i[lo:hi], j[lo:hi], f[lo:hi])
+    return lines
+
+
+def _turns_half_a_circle(points: np.ndarray) -> bool:
+    """A line must turn by half a circle at least to cross itself (and have 3 segments)."""
+    if len(points) - 1 < 3:
+        return False
+    d = np.diff(points[:, :2], axis=0)
+    heading = np.arctan2(d[:, 1], d[:, 0])
+    return not np.sum(np.abs((np.diff(heading) + np.pi) % (2 * np.pi) - np.pi)) < np.pi
+
+
+def _cut_loops(points: np.ndarray, i: np.ndarray, j: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """Cut the loops between crossing segments i < j (at fraction f of segment i) out of one line."""
     pieces, done = [], 0
     for first in np.unique(i):  # in order along the line; loops inside a cut loop are gone with it
         if first < done:
@@ -145,9 +179,9 @@ class LaneLines:
         counts = np.array([len(p) for p in lines])
         points = np.concatenate(lines)
         lane = np.repeat(np.arange(len(missing)), counts)
-        suspect = _may_loop_or_fold(lane, points, len(missing))
-        for i in np.flatnonzero(suspect).tolist():
-            lines[i] = without_folds(without_loops(lines[i]))
+        suspect = np.flatnonzero(_may_loop_or_fold(lane, points, len(missing))).tolist()
+        for i, line in zip(suspect, lines_without_loops([lines[i] for i in suspect])):
+            lines[i] = without_folds(line)
         if np.any(suspect):
             counts = np.array([len(p) for p in lines])
             points = np.concatenate(lines)
