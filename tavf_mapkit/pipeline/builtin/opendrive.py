@@ -47,10 +47,10 @@ class OpenDriveStage(Stage):
             odr, more_facts = _import_input(context)
             files["xodr"] = f"{context.name}.xodr"
         else:
-            odr, repairs = _repaired_netconvert_output(context)
-            if repairs:  # the rewritten NAME.xodr is this stage's output from now on
+            odr, repaired_facts = _repaired_netconvert_output(context)
+            if repaired_facts:  # the rewritten NAME.xodr is this stage's output from now on
                 files["xodr"] = str(context.artifacts["xodr"].relative_to(context.folder))
-            more_facts["repairs"] = repair_facts(repairs)
+            more_facts["repairs"] = repaired_facts
             if not repair_enabled(context):
                 more_facts["repair"] = False  # --no-repair: "no repairs" does not mean none were needed
         summary = summarise(odr)
@@ -116,7 +116,8 @@ def _repair_steps(context: BuildContext) -> list:
 
 
 def _repaired_netconvert_output(context: BuildContext):
-    """netconvert's OpenDRIVE with its impossible geometry repaired (NAME.xodr rewritten when anything was)."""
+    """(netconvert's OpenDRIVE with its impossible geometry repaired, NAME.xodr rewritten when anything was;
+    the repairs' facts, ``repair_facts``)."""
     from tavf_mapkit.errors import StageError
     from tavf_mapkit.memory import return_freed_memory
     from tavf_mapkit.opendrive.repair import DROPPED_ROAD
@@ -131,7 +132,7 @@ def _repaired_netconvert_output(context: BuildContext):
         repaired, made = step(repaired)
         repairs += made
     if not repairs:
-        return repaired, []  # every step returned the map it was given
+        return repaired, {}  # every step returned the map it was given
     return_freed_memory()
     dropped = [repair for repair in repairs if repair.action == DROPPED_ROAD]
     xodr = context.artifacts["xodr"]
@@ -147,12 +148,16 @@ def _repaired_netconvert_output(context: BuildContext):
         more = f" (and {len(made) - 1} more of {action!r}: facts of stage opendrive in manifest.json)" \
             if len(made) > 1 else ""
         context.note(f"repaired netconvert's OpenDRIVE: {made[0]}{more}")
+    # what the manifest keeps of the repairs; the records go before the map is written and summarised (a city's
+    # 300,000 with their texts: 70 MB)
+    facts = repair_facts(repairs)
+    del repairs, by_action, dropped, made
     # netconvert stamps its output with the time (header @date): without the stamp the repaired file depends on
     # the input only, so a rebuild -- which reruns netconvert, whose file this no longer is -- reuses the stages
     # after this one
     repaired = repaired.with_header(replace(repaired.header, date=None))
     write_opendrive(repaired, xodr)  # a new file renamed over netconvert's (write_opendrive is atomic)
-    return repaired, repairs
+    return repaired, facts
 
 
 def _network_extent(context: BuildContext):
