@@ -24,26 +24,58 @@ def available() -> bool:
 
 
 class EmbreeWorld:
-    """The collision world's triangles in pybullet coordinates, with the body id of every triangle."""
+    """The collision world's triangles in pybullet coordinates, with the body id of every triangle: the whole
+    world (``EmbreeWorld(collision_dir, bodies)``, ``bodies`` as ``tavf_mapkit.world.load`` made them), or the
+    tiles a ``TileStream`` has loaded now (``EmbreeWorld.following(stream)``: rebuilt when they change)."""
 
-    def __init__(self, collision_dir: Path, bodies):
+    def __init__(self, collision_dir: Path | None = None, bodies=None):
+        self.stream = None
+        self._generation = None
+        self._meshes: dict[int, object] = {}  # world id -> trimesh of a loaded body (streamed)
+        if collision_dir is None:
+            return
+        world = json.loads((Path(collision_dir) / "world.json").read_text(encoding="utf-8"))
+        by_name = {body.name: body.body_id for body in bodies.bodies}
+        self._set([(by_name[entry["name"]], _mesh(Path(collision_dir) / entry["file"]))
+                   for entry in world["bodies"]])
+
+    @classmethod
+    def following(cls, stream) -> EmbreeWorld:
+        scene = cls()
+        scene.stream = stream
+        scene._refresh()
+        return scene
+
+    def _set(self, bodies: list) -> None:
+        """Cast against these (pybullet id, trimesh) bodies."""
         import trimesh
         from trimesh.ray.ray_pyembree import RayMeshIntersector
 
-        world = json.loads((Path(collision_dir) / "world.json").read_text(encoding="utf-8"))
-        by_name = {body.name: body.body_id for body in bodies.bodies}
-        meshes, owners = [], []
-        for entry in world["bodies"]:
-            mesh = trimesh.load(Path(collision_dir) / entry["file"], force="mesh", process=False)
-            meshes.append(mesh)
-            owners.append(np.full(len(mesh.faces), by_name[entry["name"]], dtype=np.int64))
-        self.mesh = trimesh.util.concatenate(meshes)
+        meshes = [mesh for _, mesh in bodies if len(mesh.faces)]
+        owners = [np.full(len(mesh.faces), body, dtype=np.int64) for body, mesh in bodies if len(mesh.faces)]
+        self.mesh = trimesh.util.concatenate(meshes) if meshes else None
         self.face_body = np.concatenate(owners) if owners else np.zeros(0, dtype=np.int64)
-        self.intersector = RayMeshIntersector(self.mesh)
-        self.static_ids = frozenset(by_name.values())
+        self.intersector = RayMeshIntersector(self.mesh) if meshes else None
+        self.static_ids = frozenset(body for body, _ in bodies)
+
+    def _refresh(self) -> None:
+        """Follow the stream: the bodies it has loaded now, each OBJ read once while its tile stays."""
+        stream = self.stream
+        if stream is None or stream.generation == self._generation:
+            return
+        loaded = stream.loaded_ids()  # pybullet id -> world id
+        wanted = set(loaded.values())
+        self._meshes = {k: mesh for k, mesh in self._meshes.items() if k in wanted}
+        for k in sorted(wanted - set(self._meshes)):
+            self._meshes[k] = _mesh(stream.folder / stream.entries[k]["file"])
+        self._set([(body, self._meshes[k]) for body, k in sorted(loaded.items(), key=lambda item: item[1])])
+        self._generation = stream.generation
 
     def first_hits(self, origin: np.ndarray, directions: np.ndarray, max_range: float):
-        """(range m, inf without a hit; body id or -1) of rays from one origin (pybullet frame)."""
+        """(range m, inf without a hit; pybullet body id or -1) of rays from one origin (pybullet frame)."""
+        self._refresh()
+        if self.intersector is None:
+            return np.full(len(directions), np.inf), np.full(len(directions), -1, dtype=np.int64)
         origins = np.broadcast_to(origin, directions.shape)
         locations, ray, face = self.intersector.intersects_location(origins, directions, multiple_hits=False)
         ranges = np.full(len(directions), np.inf)
@@ -53,6 +85,12 @@ class EmbreeWorld:
         ranges[ray[keep]] = distance[keep]
         body[ray[keep]] = self.face_body[face[keep]]
         return ranges, body
+
+
+def _mesh(path: Path):
+    import trimesh
+
+    return trimesh.load(path, force="mesh", process=False)
 
 
 def dynamic_hits(client_id: int, ignore_ids, origin: np.ndarray, directions: np.ndarray, max_range: float,

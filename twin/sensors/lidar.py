@@ -36,8 +36,11 @@ class LidarScan:
 
 class LidarSensor:
     def __init__(self, client_id: int, config: LidarConfig, dt: float, threads: int = 0, origin=(0.0, 0.0, 0.0),
-                 embree=None):
+                 embree=None, world=None):
         self.client_id = client_id
+        # the session's SimWorld: hit body ids are reported as its world ids (streamed tiles are renumbered
+        # by pybullet); the cars' ground query has covered the lidar's range around the ego already
+        self.world = world
         self.embree = embree  # an EmbreeWorld: the static world is cast with Embree, other bodies in pybullet
         self.ignore_ids: frozenset[int] = frozenset()  # bodies rays never hit (the twin's own cars)
         self.origin = np.asarray(origin, dtype=float)  # map coordinates of pybullet's (0, 0, 0)
@@ -67,7 +70,7 @@ class LidarSensor:
                          ranges, bodies)
             hit = np.isfinite(ranges)
             points = sensor + self.origin + directions[hit] * ranges[hit][:, None]
-            return LidarScan(t, ranges.reshape(c.channels, c.columns), points, bodies[hit])
+            return LidarScan(t, ranges.reshape(c.channels, c.columns), points, self._world_ids(bodies[hit]))
         ends = sensor + (self.directions @ rotation.T) * c.range_m
         fractions = np.empty(len(ends))
         bodies = np.empty(len(ends), dtype=np.int64)
@@ -81,7 +84,10 @@ class LidarSensor:
         hit = bodies >= 0
         ranges = np.where(hit, fractions * c.range_m, np.inf).reshape(c.channels, c.columns)
         points = sensor + self.origin + self.directions[hit] @ rotation.T * (fractions[hit] * c.range_m)[:, None]
-        return LidarScan(t, ranges, points, bodies[hit])
+        return LidarScan(t, ranges, points, self._world_ids(bodies[hit]))
+
+    def _world_ids(self, bodies: np.ndarray) -> np.ndarray:
+        return bodies if self.world is None else self.world.world_ids(bodies)
 
 
 def _rotation(yaw: float, pitch: float, roll: float) -> np.ndarray:

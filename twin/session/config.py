@@ -31,6 +31,9 @@ class DriveConfig:
     camera: bool = False
     camera_rate: float = 5.0
     gui: bool = False
+    # load the whole collision world at start instead of streaming its tiles around the cars (the GUI always
+    # does); the drive is the same either way (docs/twin.md, Collision world)
+    whole_world: bool = False
     plot: bool = True
     pace: float | None = None  # at most this many times real time (1 = real time); None = as fast as it can
     plugins: dict[str, Any] = field(default_factory=dict)  # hook options: udm, record, traffic, ...

@@ -141,19 +141,22 @@ class Session:
         from twin.planning.chunks import with_speed
         from twin.planning.local_planner import LocalPlanner
         from twin.session.fleet import Fleet
-        from twin.sim.world import SimWorld
+        from twin.sim.world import SimWorld, sensor_reach
         from twin.vehicle.body import VehicleBodies
         from twin.vehicle.dynamics import BicycleModel
         from twin.vehicle.params import MODEL_S
 
-        self.world = SimWorld(self.build, self.dt, gui=config.gui)
+        # the collision world streamed around the cars (a region's start and memory do not grow with the map);
+        # whole for the GUI, where a person looks at the map
+        self.world = SimWorld(self.build, self.dt, gui=config.gui, stream=not (config.gui or config.whole_world),
+                              reach_m=sensor_reach(config.lidar, config.camera))
         n = config.vehicles
         controllers = {"pid": lambda: PidLateral(n, self.dt), "pure-pursuit": lambda: PurePursuit(n)}
         if config.controller not in controllers:
             raise InputError(f"unknown controller {config.controller!r} (choose pid or pure-pursuit)")
         buffer = PathBuffer(n)
         planner = LocalPlanner(buffer, controllers[config.controller](), MODEL_S, n, self.dt)
-        bodies = VehicleBodies(self.world.client_id, MODEL_S, n, origin=self.world.origin)
+        bodies = VehicleBodies(self.world.client_id, MODEL_S, n, origin=self.world.origin, world=self.world)
         self.fleet = Fleet(BicycleModel(MODEL_S), bodies, buffer, planner, self.dt, self.world.solid_ids,
                            self.world.body_names)
         speed = None if config.speed_kmh is None else config.speed_kmh / 3.6
@@ -179,11 +182,13 @@ class Session:
             from twin.sensors import embree
             from twin.sensors.lidar import LidarConfig, LidarSensor
 
-            scene = embree.EmbreeWorld(self.build.collision_world.parent, self.world.bodies) \
-                if embree.available() else None
+            scene = None
+            if embree.available():
+                scene = embree.EmbreeWorld.following(self.world.stream) if self.world.stream is not None else \
+                    embree.EmbreeWorld(self.build.collision_world.parent, self.world.bodies)
             self.lidar = LidarSensor(self.client_id, LidarConfig(config.lidar_channels, config.lidar_columns,
                                                                  config.lidar_rate), self.dt,
-                                     origin=self.world.origin, embree=scene)
+                                     origin=self.world.origin, embree=scene, world=self.world)
             self.lidar.ignore_ids = frozenset(self.fleet.bodies.body_ids)
         if config.camera:
             from twin.sensors.camera import CameraConfig, CameraSensor

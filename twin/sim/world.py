@@ -1,7 +1,12 @@
 """The pybullet client of a session: deterministic settings and the build's collision world.
 
-The collision world is loaded exactly as mapkit wrote it, with ``tavf_mapkit.world.load``; its ``origin``
-(the map coordinates of pybullet's (0, 0, 0)) is kept so every pybullet call converts map <-> pybullet.
+The collision world is the one mapkit wrote, either streamed around the cars (``tavf_mapkit.world.TileStream``:
+the tiles within ``reach_m`` + ``CAR_REACH_M`` of a car, a region's start and memory do not grow with the map)
+or loaded whole (``tavf_mapkit.world.load``, for the GUI, where a person looks at the map). Bodies are named
+by their world id (their index in world.json, the pybullet id a whole load gives them) in ``solid_ids``,
+``body_names``, ``bodies`` and every body id the vehicles and sensors report (``world_ids`` translates pybullet's
+ids): a streamed drive is the same drive as a whole-world one, see docs/twin.md. The ``origin`` (the map
+coordinates of pybullet's (0, 0, 0)) is kept so every pybullet call converts map <-> pybullet.
 """
 
 from __future__ import annotations
@@ -20,13 +25,30 @@ log = logging.getLogger(__name__)
 # (road, roadside) and curbs: a body overhangs a curb as high as its ground clearance, the wheels find curbs.
 SOLID_GROUPS = frozenset({"object", "signal", "building"})
 
+# m from a car's centre of gravity that its own queries reach, with room: the wheel rays (~3 m), the curb probe
+# along a wheel's last step, the box's bounding box (half diagonal ~2.6 m). Streamed tiles cover this plus the
+# sensors' reach around every car.
+CAR_REACH_M = 10.0
+
+
+def sensor_reach(lidar: bool, camera: bool) -> float:
+    """How far (m) the session's sensors cast rays from the car: the lidar's range, the camera's far plane."""
+    from twin.sensors.camera import CameraConfig
+    from twin.sensors.lidar import LidarConfig
+
+    return max([0.0] + ([LidarConfig().range_m] if lidar else []) + ([CameraConfig().far_m] if camera else []))
+
 
 class SimWorld:
-    def __init__(self, build: Build, dt: float, gui: bool = False):
+    """``stream``: load tiles around the cars (``cover``) instead of the whole world; ``reach_m``: how far the
+    sensors reach from a car (``sensor_reach``)."""
+
+    def __init__(self, build: Build, dt: float, gui: bool = False, stream: bool = False, reach_m: float = 0.0):
         if not build.collision_world.is_file():
             raise InputError("the build has no collision world (collision/world.json); rebuild it with "
                              "`mapkit build` and the collision stage", file=str(build.path))
         self.build = build
+        self.stream = None
         self.client_id = _connect(gui)
         try:
             pb.resetSimulation(physicsClientId=self.client_id)
@@ -34,14 +56,31 @@ class SimWorld:
             pb.setPhysicsEngineParameter(fixedTimeStep=dt, numSubSteps=1, deterministicOverlappingPairs=1,
                                          physicsClientId=self.client_id)
             pb.setGravity(0.0, 0.0, -9.81, physicsClientId=self.client_id)
-            from tavf_mapkit.world import load
+            from tavf_mapkit.world import TileStream, load
 
-            self.bodies = load(build.path, self.client_id)
+            if stream:
+                self.stream = TileStream(build.path, self.client_id, radius=float(reach_m) + CAR_REACH_M)
+                self.bodies = self.stream.catalogue
+            else:
+                self.stream = None
+                self.bodies = load(build.path, self.client_id)
         except BaseException:
             self.close()
             raise
         self.origin = np.asarray(self.bodies.origin, dtype=float)
         self.solid_ids, self.body_names = _classify(self.bodies)
+
+    def cover(self, points_local) -> None:
+        """Make the world complete around these car positions ((n, 2) OpenDRIVE local x, y): called before
+        every query of the cars (their rays and contacts); nothing to do for a whole world."""
+        if self.stream is not None:
+            self.stream.cover(points_local)
+
+    def world_ids(self, pybullet_ids) -> np.ndarray:
+        """World ids of pybullet body ids (-1 stays -1); a whole world's ids are its pybullet ids."""
+        if self.stream is not None:
+            return self.stream.world_ids(pybullet_ids)
+        return np.asarray(pybullet_ids, dtype=np.int64)
 
     def close(self) -> None:
         if self.client_id is not None and pb.isConnected(self.client_id):

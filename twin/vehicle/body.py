@@ -57,8 +57,12 @@ def quaternions(yaw, pitch, roll) -> np.ndarray:
 class VehicleBodies:
     """N vehicle boxes in one pybullet client."""
 
-    def __init__(self, client_id: int, params: VehicleParams, count: int, colours=None, origin=(0.0, 0.0, 0.0)):
+    def __init__(self, client_id: int, params: VehicleParams, count: int, colours=None, origin=(0.0, 0.0, 0.0),
+                 world=None):
         self.client_id = client_id
+        # the session's SimWorld: covered around the cars before their queries (streamed tiles), and the
+        # translator of pybullet ids into world ids; None: the client's ids as they are
+        self.world = world
         # map (OpenDRIVE local) coordinates of pybullet's (0, 0, 0): the collision world is recentred there
         self.origin = np.asarray(origin, dtype=float)
         self.params = params
@@ -96,6 +100,8 @@ class VehicleBodies:
     def ground(self, x, y, yaw, z_hint) -> Ground:
         """Cast the wheel rays and fit the body to the four contacts (missing contacts keep their last height)."""
         n = len(x)
+        if self.world is not None:
+            self.world.cover(np.column_stack([x, y]))
         if self._last_wheel_z is None:
             self.reset_heights(z_hint)
         last = self._last_wheel_z
@@ -107,6 +113,8 @@ class VehicleBodies:
         results = pb.rayTestBatch(top.tolist(), bottom.tolist(), collisionFilterMask=~VEHICLE_GROUP & 0xFFFF,
                                   physicsClientId=self.client_id)
         bodies = np.fromiter((r[0] for r in results), dtype=np.int64, count=len(results))
+        if self.world is not None:
+            bodies = self.world.world_ids(bodies)
         body = bodies[: 4 * n].reshape(n, 4)
         hit_z = np.fromiter((r[3][2] for r in results[: 4 * n]), dtype=float, count=4 * n).reshape(n, 4)
         hit_z += self.origin[2]
@@ -157,15 +165,17 @@ class VehicleBodies:
                                                physicsClientId=self.client_id)
 
     def touching(self, index: int, candidates: frozenset[int] | set[int]) -> list[tuple[int, float]]:
-        """(body id, penetration depth m) of the candidate bodies the box of vehicle ``index`` touches."""
+        """(body id, penetration depth m) of the candidate bodies the box of vehicle ``index`` touches (ids of
+        the world's when a world is given: ``candidates`` and the answer)."""
         body = self.body_ids[index]
         low, high = pb.getAABB(body, physicsClientId=self.client_id)
         near = pb.getOverlappingObjects(low, high, physicsClientId=self.client_id) or ()
         found = []
         for other, _link in near:
-            if other not in candidates:
+            key = other if self.world is None else int(self.world.world_ids(other))
+            if key not in candidates:
                 continue
             points = pb.getClosestPoints(body, other, 0.0, physicsClientId=self.client_id)
             if points:
-                found.append((other, float(-min(point[8] for point in points))))
+                found.append((key, float(-min(point[8] for point in points))))
         return found

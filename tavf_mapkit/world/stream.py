@@ -1,0 +1,196 @@
+"""The collision world streamed into a pybullet client tile by tile around moving points (the twin's cars),
+as CARLA's large maps do: ``TileStream(build_dir, client_id, radius).cover(points)``.
+
+``load`` puts every body of a build into pybullet: on a region that is hundreds of MB and seconds of start.
+A stream loads only the tiles whose bodies come within ``radius`` of a covered point and drops tiles once all
+points are more than ``radius + hysteresis`` away, so its memory grows with the radius, not with the map.
+
+What a query sees is what the whole world gives: a ray or contact query that reaches at most ``radius`` from
+a covered point can only meet bodies whose bounding boxes come that close, and those tiles are loaded (a tile
+is judged by the boxes of its bodies, which may reach over its square: whole solids, faces by centroid).
+Bodies keep one id per body whatever pybullet numbers them: the world id, the body's index in world.json,
+which is the pybullet id ``load`` gives it in a fresh client (``world_ids`` translates).
+"""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+
+from tavf_mapkit.errors import InputError
+from tavf_mapkit.world.bodies import Body, WorldBodies
+from tavf_mapkit.world.loader import read_world, world_file
+
+
+class TileStream:
+    """The tiles of a build's collision world near the covered points, in one pybullet client."""
+
+    def __init__(self, build_dir, physics_client_id: int, radius: float, hysteresis: float | None = None,
+                 verify: bool = True):
+        file = world_file(build_dir)
+        world = read_world(file)
+        self.folder = file.parent
+        self.client_id = physics_client_id
+        self.verify = verify
+        entries = world.get("bodies", [])
+        self.entries = entries
+        # the catalogue: every body with its world id (what ``load`` would make its pybullet id)
+        self.catalogue = WorldBodies(
+            np.asarray(world["origin"], dtype=np.float64),
+            tuple(Body(e["name"], e["tile"], e["group"], k, e["file"]) for k, e in enumerate(entries)),
+            physics_client_id, float(world.get("tile_size", 0.0)), float(world.get("eps", 0.0)))
+        self.tile_size = self.catalogue.tile_size if self.catalogue.tile_size > 0 else 100.0
+        self.radius = float(radius)
+        self.hysteresis = self.tile_size if hysteresis is None else float(hysteresis)
+        if not (self.radius >= 0 and np.isfinite(self.radius) and self.hysteresis >= 0):
+            raise ValueError("radius and hysteresis must be finite metres >= 0")
+        self._tiles_of_bodies(entries)
+        self.loaded: dict[int, list[int]] = {}   # tile number -> pybullet ids of its bodies (world.json order)
+        self._world_of = np.full(0, -1, dtype=np.int64)  # pybullet id -> world id (-1: not a world body)
+        # world id -> collision shape. pybullet frees a shape only with resetSimulation (removeCollisionShape
+        # refuses a shape a body ever used: bullet3 #2086, #4326), so a dropped tile's shapes are kept and
+        # reused when it comes back: memory grows with the tiles visited, never past the whole world
+        self._shapes: dict[int, int] = {}
+        self._cells: tuple | None = None
+        self.generation = 0  # +1 whenever the loaded set changes (consumers with caches rebuild then)
+        self.loads = self.drops = 0
+
+    def _tiles_of_bodies(self, entries: list) -> None:
+        """Per tile (in world.json's order of first appearance): its bodies and the box around their bounds."""
+        number: dict[str, int] = {}
+        members: list[list[int]] = []
+        for k, entry in enumerate(entries):
+            t = number.setdefault(entry["tile"], len(number))
+            if t == len(members):
+                members.append([])
+            members[t].append(k)
+        self.tile_bodies = members
+        self.tile_names = list(number)
+        low = np.full((len(members), 2), np.inf)
+        high = np.full((len(members), 2), -np.inf)
+        for t, ks in enumerate(members):
+            for k in ks:
+                (lx, ly, *_), (hx, hy, *_) = entries[k]["bounds"]
+                low[t] = np.minimum(low[t], (lx, ly))
+                high[t] = np.maximum(high[t], (hx, hy))
+        self.tile_low, self.tile_high = low, high  # pybullet frame (OpenDRIVE local - origin)
+
+    # ------------------------------------------------------------------ covering
+    def cover(self, points_local) -> None:
+        """Make the world complete within ``radius`` of every (x, y) point (OpenDRIVE local coordinates), and
+        drop tiles beyond ``radius + hysteresis`` of all of them. Cheap while no point changes its grid square:
+        each square is covered whole, so nothing needs doing until a point leaves it."""
+        xy = np.asarray(points_local, dtype=np.float64).reshape(-1, 2) - self.catalogue.origin[:2]
+        cells = np.floor(xy / self.tile_size + 0.5).astype(np.int64)
+        key = tuple(map(tuple, np.unique(cells, axis=0).tolist()))
+        if key == self._cells:
+            return
+        distance = self._distance_to_cells(np.asarray(key, dtype=np.float64))
+        wanted = np.flatnonzero(distance <= self.radius)
+        keep = distance <= self.radius + self.hysteresis
+        changed = False
+        for t in [t for t in self.loaded if not keep[t]]:
+            self._drop(t)
+            changed = True
+        for t in wanted.tolist():
+            if t not in self.loaded:
+                self._load(t)
+                changed = True
+        self._cells = key
+        self.generation += changed
+
+    def _distance_to_cells(self, cells: np.ndarray) -> np.ndarray:
+        """Per tile: the least plan distance between its bodies' box and any of the grid squares ``cells``."""
+        best = np.full(len(self.tile_low), np.inf)
+        for i, j in cells:
+            x0, x1, y0, y1 = (i - 0.5) * self.tile_size, (i + 0.5) * self.tile_size, \
+                (j - 0.5) * self.tile_size, (j + 0.5) * self.tile_size
+            dx = np.maximum.reduce([self.tile_low[:, 0] - x1, x0 - self.tile_high[:, 0], np.zeros(len(best))])
+            dy = np.maximum.reduce([self.tile_low[:, 1] - y1, y0 - self.tile_high[:, 1], np.zeros(len(best))])
+            np.minimum(best, np.hypot(dx, dy), out=best)
+        return best
+
+    def _load(self, tile: int) -> None:
+        ids = []
+        try:
+            for k in self.tile_bodies[tile]:
+                ids.append(self._create(k))
+        except BaseException:
+            for body in ids:
+                self._remove(body)
+            raise
+        self.loaded[tile] = ids
+        self.loads += 1
+
+    def _create(self, k: int) -> int:
+        import pybullet
+
+        shape = self._shapes.get(k)
+        if shape is None:
+            shape = self._shapes[k] = self._shape(k)
+        body = pybullet.createMultiBody(baseMass=0, baseCollisionShapeIndex=shape,
+                                        physicsClientId=self.client_id)
+        if body >= len(self._world_of):
+            grown = np.full(max(2 * len(self._world_of), body + 1, 64), -1, dtype=np.int64)
+            grown[:len(self._world_of)] = self._world_of
+            self._world_of = grown
+        self._world_of[body] = k
+        return body
+
+    def _shape(self, k: int) -> int:
+        """The collision shape of body ``k`` from its OBJ (checked against world.json's sha256)."""
+        import pybullet
+
+        entry = self.entries[k]
+        path = self.folder / entry["file"]
+        if self.verify:
+            try:
+                data = path.read_bytes()
+            except OSError as error:
+                raise InputError(f"collision body {entry['name']}: {error.strerror}", file=str(path)) from None
+            if hashlib.sha256(data).hexdigest() != entry.get("sha256"):
+                raise InputError(f"collision body {entry['name']} does not match world.json (changed or "
+                                 "truncated)", file=str(path))
+        shape = pybullet.createCollisionShape(pybullet.GEOM_MESH, fileName=str(path),
+                                              flags=pybullet.GEOM_FORCE_CONCAVE_TRIMESH,
+                                              physicsClientId=self.client_id)
+        if shape < 0:
+            raise InputError(f"pybullet could not load collision body {entry['name']}", file=str(path))
+        return shape
+
+    def _remove(self, body: int) -> None:
+        import pybullet
+
+        pybullet.removeBody(body, physicsClientId=self.client_id)
+        self._world_of[body] = -1
+
+    def _drop(self, tile: int) -> None:
+        for body in reversed(self.loaded.pop(tile)):
+            self._remove(body)
+        self.drops += 1
+
+    # ------------------------------------------------------------------ ids
+    def world_ids(self, pybullet_ids) -> np.ndarray:
+        """World ids of pybullet ids: a loaded world body's index in world.json; -1 stays -1 (no hit); any
+        other pybullet body (cars, traffic) ``len(bodies) + its pybullet id``, never a world body's id."""
+        ids = np.asarray(pybullet_ids, dtype=np.int64)
+        out = np.where(ids >= 0, len(self.entries) + ids, -1)
+        inside = (ids >= 0) & (ids < len(self._world_of))
+        world = np.full(ids.shape, -1, dtype=np.int64)
+        world[inside] = self._world_of[ids[inside]]
+        return np.where(world >= 0, world, out)
+
+    def loaded_ids(self) -> dict[int, int]:
+        """pybullet id -> world id of every body loaded now."""
+        return {body: int(self._world_of[body]) for ids in self.loaded.values() for body in ids}
+
+    def loaded_tiles(self) -> list[str]:
+        return sorted(self.tile_names[t] for t in self.loaded)
+
+    def close(self) -> None:
+        """Drop every tile (the client stays)."""
+        for tile in list(self.loaded):
+            self._drop(tile)
+        self._cells = None
+        self.generation += 1
