@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
 
 from tavf_mapkit.opendrive import loads_opendrive
 from tavf_mapkit.opendrive import refline
 from tavf_mapkit.opendrive.arrays import NetworkArrays
-from tavf_mapkit.opendrive.geometry import Geometry, GeometryKind
+from tavf_mapkit.opendrive.geometry import GEOMETRY_COLUMNS, Geometry, GeometryKind, GeometryTable
 from tavf_mapkit.opendrive.refline import ReferenceLine, gather_rows
 
 
@@ -77,3 +79,35 @@ def test_gather_copies_lines_of_their_own(small_packs):
     assert np.array_equal(table, expected)
     assert all(np.shares_memory(line.rows, table) for line in lines if len(line))
     assert gather_rows(lines) is not table and np.shares_memory(gather_rows(lines), table)  # no second copy
+
+
+@settings(max_examples=200, deadline=None)
+@given(sizes=st.lists(st.integers(0, 9), min_size=1, max_size=12), data=st.data())
+def test_locate_picks_each_groups_last_start_at_or_before_s(sizes, data):
+    """GeometryTable.locate (a binary search inside each query's group, no table-sized keys) against the rule
+    written out per query: the group's last row starting at or before s, its first when s is before them all,
+    found iff the group has rows; a non-finite s as the complex keys put it (the table's last row if it is the
+    group's, else the group's first). Starts repeat (zero-length geometries) and sit 1e-12 m apart."""
+    group = np.repeat(np.arange(len(sizes)), sizes)
+    starts = st.sampled_from([0.0, 1e-12, 0.5, 3.0, 3.0 + 1e-12, 7.25, 100.0, -2.0])
+    s = np.concatenate([np.sort(data.draw(st.lists(starts, min_size=n, max_size=n))) for n in sizes])
+    assume(len(s))
+    rows = np.zeros((len(s), GEOMETRY_COLUMNS))
+    rows[:, 0] = s
+    table = GeometryTable.from_rows(rows, group)
+    queries = data.draw(st.lists(st.tuples(st.integers(-1, len(sizes)), st.one_of(
+        starts, st.floats(-5.0, 120.0), st.sampled_from([np.inf, -np.inf, np.nan]))), min_size=1, max_size=40))
+    q_group = np.array([g for g, _ in queries], dtype=np.int64)
+    q_s = np.array([v for _, v in queries], dtype=float)
+    index, found = table.locate(q_group, q_s)
+    last = len(s) - 1
+    for k, (g, value) in enumerate(queries):
+        mine = np.flatnonzero(group == g)
+        first = int(np.searchsorted(group, g)) if len(mine) == 0 else int(mine[0])
+        if not np.isfinite(value):
+            expected = last if group[last] == g else min(first, last)
+        else:
+            at_or_before = mine[s[mine] <= value]
+            expected = int(at_or_before[-1]) if len(at_or_before) else min(first, last)
+        assert index[k] == expected, (g, value, index[k], expected)
+        assert found[k] == (len(mine) > 0)

@@ -115,21 +115,39 @@ class GeometryTable:
         before s; before its first one, that first one (extrapolated back) -- and whether the group has any.
 
         The one rule by which s picks a geometry: a single road (ReferenceLine) and the whole map
-        (NetworkArrays) both evaluate through it. The keys group + i*s are complex numbers, which numpy orders
-        lexicographically, so the search is exact in s (no s / span scaling)."""
+        (NetworkArrays) both evaluate through it. A binary search on s inside each query's group, all queries
+        at once, so the search is exact in s (no s / span scaling) and needs no table-sized keys (complex
+        group + i*s keys were 16 bytes a row: 78 MB for a city's 5 million arcs). A non-finite s picks what
+        those keys picked (group + i*inf is NaN + i*inf, past every key): the table's last row if it is the
+        group's, else the group's first."""
         group = np.asarray(group, dtype=np.int64)
         s = np.asarray(s, dtype=float)
         if not len(self.s):
             return np.zeros(len(s), dtype=np.int64), np.zeros(len(s), dtype=bool)
-        keys = self.__dict__.get("_keys")
-        if keys is None:
-            keys = group_keys(self.group, self.s)
-            object.__setattr__(self, "_keys", keys)
-        index = np.searchsorted(keys, group + 1j * s, side="right") - 1
         first = np.searchsorted(self.group, group, side="left")
+        finite = np.isfinite(s)
+        low = first.copy()
+        # invariant: rows [first, low) start at or before s, rows [high, group's end) after it; only the queries
+        # still open are carried on (most roads have a few rows, a chain of arcs hundreds)
+        open_ = np.flatnonzero(finite)
+        high = np.searchsorted(self.group, group[open_], side="right")
+        query = s[open_]
+        at = low[open_]
+        while True:
+            done = at >= high
+            if done.any():
+                low[open_[done]] = at[done]
+                keep = ~done
+                open_, at, high, query = open_[keep], at[keep], high[keep], query[keep]
+            if not len(open_):
+                break
+            middle = (at + high) >> 1  # at < middle + 1 <= high: inside the group
+            before = self.s[middle] <= query
+            at = np.where(before, middle + 1, at)
+            high = np.where(before, high, middle)
         last = len(self.s) - 1
-        before_first = (index < 0) | (self.group[np.clip(index, 0, last)] != group)
-        index = np.where(before_first, np.minimum(first, last), index)
+        index = np.where(low > first, low - 1, np.minimum(first, last))
+        index = np.where(finite, index, np.where(self.group[last] == group, last, np.minimum(first, last)))
         return index, self.group[index] == group
 
     def evaluate(self, index: np.ndarray, ds: np.ndarray):

@@ -140,6 +140,11 @@ def repair_curves(odr, tolerance: float = TOLERANCE, max_pieces: int = MAX_PIECE
         return odr, repairs
     repaired = OpenDriveMap(odr.header, tuple(roads), odr.junctions, odr.controllers, odr.source, odr.warnings,
                             odr.extra_xml)
+    # the given map's tables are done with (every road's rows are in the packs now) and made again if that map is
+    # asked for them: not held beside the repaired map's while the caller still holds the given one (Columbus:
+    # 150 MB)
+    del table
+    odr.__dict__.pop("arrays", None)
     if maybe_redundant:
         # a curve that became a line beside a line of its heading is one line with it (ASAM: redundant lines)
         repaired, merged = repair_redundant(repaired)
