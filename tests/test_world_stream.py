@@ -57,6 +57,9 @@ def test_stream_loads_the_tiles_near_the_points_and_drops_far_ones(sample_build_
             assert loaded == near | kept
             seen_far += len(previous - loaded)
             previous = loaded
+            generation, loads = stream.generation, stream.loads
+            stream.cover((point + origin[:2])[None])  # the same square again: nothing to do
+            assert (stream.generation, stream.loads) == (generation, loads)
             # pybullet holds just those tiles' bodies, each known by its world id
             ids = stream.loaded_ids()
             assert pb.getNumBodies(physicsClientId=client) == len(ids)

@@ -35,24 +35,29 @@ class TileStream:
         self.verify = verify
         entries = world.get("bodies", [])
         self.entries = entries
-        # the catalogue: every body with its world id (what ``load`` would make its pybullet id)
+        # the catalogue: every body with its world id (what ``load`` would make its pybullet id); its
+        # ``cast_down`` would see only the loaded tiles and answer pybullet ids: cover first, translate after
         self.catalogue = WorldBodies(
             np.asarray(world["origin"], dtype=np.float64),
             tuple(Body(e["name"], e["tile"], e["group"], k, e["file"]) for k, e in enumerate(entries)),
             physics_client_id, float(world.get("tile_size", 0.0)), float(world.get("eps", 0.0)))
         self.tile_size = self.catalogue.tile_size if self.catalogue.tile_size > 0 else 100.0
+        self._origin_xy = self.catalogue.origin[:2].copy()
         self.radius = float(radius)
         self.hysteresis = self.tile_size if hysteresis is None else float(hysteresis)
         if not (self.radius >= 0 and np.isfinite(self.radius) and self.hysteresis >= 0):
             raise ValueError("radius and hysteresis must be finite metres >= 0")
         self._tiles_of_bodies(entries)
         self.loaded: dict[int, list[int]] = {}   # tile number -> pybullet ids of its bodies (world.json order)
-        self._world_of = np.full(0, -1, dtype=np.int64)  # pybullet id -> world id (-1: not a world body)
+        # pybullet id + 1 -> world id; [0] answers -1 (no hit), bodies not of the world len(bodies) + their id
+        self._table = np.full(1, -1, dtype=np.int64)
         # world id -> collision shape. pybullet frees a shape only with resetSimulation (removeCollisionShape
         # refuses a shape a body ever used: bullet3 #2086, #4326), so a dropped tile's shapes are kept and
         # reused when it comes back: memory grows with the tiles visited, never past the whole world
         self._shapes: dict[int, int] = {}
-        self._cells: tuple | None = None
+        self._world: dict[int, int] = {}  # pybullet id -> world id of the bodies loaded now
+        self._cells: tuple | None = None  # the grid squares covered now
+        self._last: np.ndarray | None = None  # the points' squares at the last call, in their order
         self.generation = 0  # +1 whenever the loaded set changes (consumers with caches rebuild then)
         self.loads = self.drops = 0
 
@@ -81,9 +86,13 @@ class TileStream:
         """Make the world complete within ``radius`` of every (x, y) point (OpenDRIVE local coordinates), and
         drop tiles beyond ``radius + hysteresis`` of all of them. Cheap while no point changes its grid square:
         each square is covered whole, so nothing needs doing until a point leaves it."""
-        xy = np.asarray(points_local, dtype=np.float64).reshape(-1, 2) - self.catalogue.origin[:2]
-        cells = np.floor(xy / self.tile_size + 0.5).astype(np.int64)
-        key = tuple(map(tuple, np.unique(cells, axis=0).tolist()))
+        xy = np.asarray(points_local, dtype=np.float64).reshape(-1, 2)
+        cells = np.floor((xy - self._origin_xy) * (1.0 / self.tile_size) + 0.5)
+        last = self._last
+        if last is not None and last.shape == cells.shape and (last == cells).all():
+            return  # the step's usual case: every point in the square it was in
+        self._last = cells
+        key = tuple(map(tuple, np.unique(cells.astype(np.int64), axis=0).tolist()))
         if key == self._cells:
             return
         distance = self._distance_to_cells(np.asarray(key, dtype=np.float64))
@@ -131,11 +140,10 @@ class TileStream:
             shape = self._shapes[k] = self._shape(k)
         body = pybullet.createMultiBody(baseMass=0, baseCollisionShapeIndex=shape,
                                         physicsClientId=self.client_id)
-        if body >= len(self._world_of):
-            grown = np.full(max(2 * len(self._world_of), body + 1, 64), -1, dtype=np.int64)
-            grown[:len(self._world_of)] = self._world_of
-            self._world_of = grown
-        self._world_of[body] = k
+        if body + 1 >= len(self._table):
+            self._grow(body)
+        self._table[body + 1] = k
+        self._world[body] = k
         return body
 
     def _shape(self, k: int) -> int:
@@ -163,7 +171,8 @@ class TileStream:
         import pybullet
 
         pybullet.removeBody(body, physicsClientId=self.client_id)
-        self._world_of[body] = -1
+        self._table[body + 1] = len(self.entries) + body  # pybullet may give the id to another body
+        del self._world[body]
 
     def _drop(self, tile: int) -> None:
         for body in reversed(self.loaded.pop(tile)):
@@ -175,15 +184,28 @@ class TileStream:
         """World ids of pybullet ids: a loaded world body's index in world.json; -1 stays -1 (no hit); any
         other pybullet body (cars, traffic) ``len(bodies) + its pybullet id``, never a world body's id."""
         ids = np.asarray(pybullet_ids, dtype=np.int64)
-        out = np.where(ids >= 0, len(self.entries) + ids, -1)
-        inside = (ids >= 0) & (ids < len(self._world_of))
-        world = np.full(ids.shape, -1, dtype=np.int64)
-        world[inside] = self._world_of[ids[inside]]
-        return np.where(world >= 0, world, out)
+        if ids.size and int(ids.max()) + 1 >= len(self._table):
+            self._grow(int(ids.max()))
+        return self._table[ids + 1]
+
+    def world_id(self, pybullet_id: int) -> int:
+        """``world_ids`` of one id (the contact loop's)."""
+        if pybullet_id + 1 >= len(self._table):
+            self._grow(pybullet_id)
+        return int(self._table[pybullet_id + 1])
+
+    def _grow(self, pybullet_id: int) -> None:
+        """Make the table answer every pybullet id up to ``pybullet_id`` (and then some)."""
+        old = len(self._table) - 1  # ids 0 .. old-1 answered now
+        size = max(2 * old, pybullet_id + 1, 64)
+        table = np.empty(size + 1, dtype=np.int64)
+        table[:old + 1] = self._table
+        table[old + 1:] = len(self.entries) + np.arange(old, size)
+        self._table = table
 
     def loaded_ids(self) -> dict[int, int]:
         """pybullet id -> world id of every body loaded now."""
-        return {body: int(self._world_of[body]) for ids in self.loaded.values() for body in ids}
+        return dict(self._world)
 
     def loaded_tiles(self) -> list[str]:
         return sorted(self.tile_names[t] for t in self.loaded)
@@ -192,5 +214,5 @@ class TileStream:
         """Drop every tile (the client stays)."""
         for tile in list(self.loaded):
             self._drop(tile)
-        self._cells = None
+        self._cells = self._last = None
         self.generation += 1

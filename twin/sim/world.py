@@ -82,6 +82,9 @@ class SimWorld:
             return self.stream.world_ids(pybullet_ids)
         return np.asarray(pybullet_ids, dtype=np.int64)
 
+    def world_id(self, pybullet_id: int) -> int:
+        return self.stream.world_id(pybullet_id) if self.stream is not None else pybullet_id
+
     def close(self) -> None:
         if self.client_id is not None and pb.isConnected(self.client_id):
             pb.disconnect(self.client_id)

@@ -172,7 +172,7 @@ class VehicleBodies:
         near = pb.getOverlappingObjects(low, high, physicsClientId=self.client_id) or ()
         found = []
         for other, _link in near:
-            key = other if self.world is None else int(self.world.world_ids(other))
+            key = other if self.world is None else self.world.world_id(other)
             if key not in candidates:
                 continue
             points = pb.getClosestPoints(body, other, 0.0, physicsClientId=self.client_id)
