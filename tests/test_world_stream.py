@@ -141,7 +141,7 @@ def test_streamed_rays_and_contacts_are_the_whole_worlds(sample_build_dir):
 @pytest.mark.slow
 def test_streamed_drive_is_the_whole_world_drive(sample_build_dir, tmp_path):
     """The same random drive with the world streamed and loaded whole: byte-identical trajectories, the same
-    metrics (road surface judged by world ids) and collisions, with the lidar on (its hits by world id)."""
+    metrics (road surface judged by world ids) and collisions; the last lidar scan (hits by world id) and camera frame too."""
     from twin.session.config import DriveConfig
     from twin.session.loop import Session
 
@@ -149,7 +149,8 @@ def test_streamed_drive_is_the_whole_world_drive(sample_build_dir, tmp_path):
     for whole in (False, True):
         out = tmp_path / ("whole" if whole else "streamed")
         config = DriveConfig(map=sample_build_dir, out=out, random=True, duration=90.0, seed=1, plot=False,
-                             whole_world=whole, lidar=True, lidar_channels=8, lidar_columns=128, lidar_rate=2.0)
+                             whole_world=whole, lidar=True, lidar_channels=8, lidar_columns=128, lidar_rate=2.0,
+                             camera=True, camera_rate=0.5)
         session = Session(config, [])
         assert (session.world.stream is None) == whole
         metrics = session.run()
@@ -157,7 +158,7 @@ def test_streamed_drive_is_the_whole_world_drive(sample_build_dir, tmp_path):
             metrics.pop(key)
         scan = session.last_lidar
         outputs[whole] = (metrics, (out / "trajectory.csv").read_bytes(), (out / "collisions.csv").read_bytes(),
-                          scan.ranges.tobytes(), scan.bodies.tolist())
+                          scan.ranges.tobytes(), scan.bodies.tolist(), session.last_camera.rgb.tobytes())
         if not whole:
             assert session.world.stream.drops > 0  # tiles came and went along the way
     assert outputs[False] == outputs[True]

@@ -32,11 +32,19 @@ CAR_REACH_M = 10.0
 
 
 def sensor_reach(lidar: bool, camera: bool) -> float:
-    """How far (m) the session's sensors cast rays from the car: the lidar's range, the camera's far plane."""
+    """How far (m) the session's sensors see from the car: the lidar's range; the camera's far plane at the
+    corners of its view (``fov_deg`` is vertical, as pybullet's projection takes it)."""
     from twin.sensors.camera import CameraConfig
     from twin.sensors.lidar import LidarConfig
 
-    return max([0.0] + ([LidarConfig().range_m] if lidar else []) + ([CameraConfig().far_m] if camera else []))
+    reach = [0.0]
+    if lidar:
+        reach.append(LidarConfig().range_m)
+    if camera:
+        c = CameraConfig()
+        tan_v = np.tan(np.radians(0.5 * c.fov_deg))
+        reach.append(float(c.far_m * np.sqrt(1.0 + tan_v ** 2 * (1.0 + (c.width / c.height) ** 2))) + c.mount_forward)
+    return max(reach)
 
 
 class SimWorld:
