@@ -8,8 +8,7 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from tavf_mapkit.opendrive import loads_opendrive
-from tavf_mapkit.opendrive import refline
+from tavf_mapkit.opendrive import loads_opendrive, refline
 from tavf_mapkit.opendrive.arrays import NetworkArrays
 from tavf_mapkit.opendrive.geometry import GEOMETRY_COLUMNS, Geometry, GeometryKind, GeometryTable
 from tavf_mapkit.opendrive.refline import ReferenceLine, gather_rows
