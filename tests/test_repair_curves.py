@@ -211,14 +211,28 @@ def test_an_inflection_on_a_wide_road_becomes_arcs_and_a_line():
     around it carry the chain's usual heading shift (~0.8 of the budget at 8 m); a line judged on that at half
     the budget could never fit, however finely split, and the curve was kept -- libOpenDRIVE then read it
     through its chord table, up to 6 mm off."""
-    pp3 = (0.0, 20.81348329, 20.80815897, -13.87285633, 0.0, 0.0, -0.81697359, 0.44261465)
-    length = 27.751534075342377
+    _assert_becomes_arcs_and_lines((0.0, 20.81348329, 20.80815897, -13.87285633, 0.0, 0.0, -0.81697359, 0.44261465),
+                                   27.751534075342377, 0.3)
+
+
+def test_a_piece_stuck_beside_a_line_is_fitted_by_splitting_the_line_too():
+    """Baltimore road 41883 (16 m, nearly straight, 8 m of lanes): its last piece is a line whose heading is
+    fixed at its knot, so the piece before it only bent harder the finer it was split (1.12 of the budget after
+    12 rounds) and the curve was kept; libOpenDRIVE read it 8.8 mm off. Curves that fail are now fitted again
+    with the neighbours of every misfit halved as well."""
+    _assert_becomes_arcs_and_lines((0.0, 24.04477013, -24.0438092, 16.02843743, -0.0, 0.0, 0.02668091, 0.09321558),
+                                   16.03009524900586, 2.87032043)
+
+
+def _assert_becomes_arcs_and_lines(pp3, length, hdg):
+    """A road with this normalised paramPoly3 and two 4 m lanes becomes arcs and lines whose borders stay within
+    the tolerance of the curve's."""
     uv = " ".join(f'{k}="{v!r}"' for k, v in zip(("aU", "bU", "cU", "dU", "aV", "bV", "cV", "dV"), pp3))
     lanes = """<laneSection s="0"><center><lane id="0" type="none" level="false"/></center><right>
         <lane id="-1" type="driving" level="false"><width sOffset="0" a="4" b="0" c="0" d="0"/></lane>
         <lane id="-2" type="driving" level="false"><width sOffset="0" a="4" b="0" c="0" d="0"/></lane>
         </right></laneSection>"""
-    geometry = (f'<geometry s="0" x="0" y="0" hdg="0.3" length="{length!r}"><paramPoly3 {uv} '
+    geometry = (f'<geometry s="0" x="0" y="0" hdg="{hdg!r}" length="{length!r}"><paramPoly3 {uv} '
                 'pRange="normalized"/></geometry>')
     odr = loads_opendrive(document(road_xml(geometry, length, lanes)))
     repaired, repairs = repair_curves(odr)

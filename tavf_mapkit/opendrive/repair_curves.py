@@ -396,7 +396,26 @@ def fit_curves(table, rows: np.ndarray, used: np.ndarray, lever: np.ndarray, tol
         x, y, hdg = curves.pose(np.array([k]), np.zeros(1))
         outcome[k] = ArcChain(np.zeros(1), x, y, hdg, np.zeros(1), used[k:k + 1].copy())
     todo = np.flatnonzero(~straight & ~short)
-    curve, pa, pb = _initial_pieces(curves, todo, lever[todo], budget, max_pieces)
+    _refine(curves, *_initial_pieces(curves, todo, lever[todo], budget, max_pieces), used, lever, budget,
+            max_pieces, tolerance, outcome, split_neighbours=False)
+    # a piece next to a line can be stuck: the line fixes the heading at their knot, so the piece bends harder
+    # the more it is split (Baltimore 41883). Only the curves that failed are fitted again, splitting such
+    # neighbours too, so that every curve that fitted keeps its arcs
+    failed = np.array([k for k in todo.tolist() if outcome[k] is None], dtype=np.int64)
+    if len(failed):
+        _refine(curves, *_initial_pieces(curves, failed, lever[failed], budget, max_pieces), used, lever, budget,
+                max_pieces, tolerance, outcome, split_neighbours=True)
+    for k in failed.tolist():
+        if outcome[k] is None:
+            outcome[k] = f"its arcs do not fit within {tolerance * 1000:g} mm after {_MAX_ROUNDS} refinements"
+    return outcome
+
+
+def _refine(curves, curve, pa, pb, used, lever, budget, max_pieces, tolerance, outcome,
+            split_neighbours: bool) -> None:
+    """Fit every curve's pieces (flat arrays, in curve and s order) round by round; a curve whose pieces all fit
+    gets its ArcChain in ``outcome``, one that needs too many pieces the reason; the rest stay None."""
+    n = len(outcome)
     why = f"more than {max_pieces} arcs would be needed to stay within {tolerance * 1000:g} mm"
     for _ in range(_MAX_ROUNDS):
         count = np.bincount(curve, minlength=n)
@@ -419,16 +438,17 @@ def fit_curves(table, rows: np.ndarray, used: np.ndarray, lever: np.ndarray, tol
         ratio = np.nan_to_num(deviation / budget, nan=4.0, posinf=4.0)
         parts = np.where(ratio > 1.0, np.clip(np.ceil(np.sqrt(ratio) * 1.1), 2, 8), 1).astype(np.int64)
         parts = np.where(~closed[curve] & (parts == 1), 2, parts)
+        if split_neighbours:  # the pieces on either side of one that does not fit are halved too
+            bad = ratio > 1.0
+            same = curve[1:] == curve[:-1]
+            beside = np.r_[bad[1:] & same, False] | np.r_[False, bad[:-1] & same]
+            parts = np.where(beside & (parts == 1), 2, parts)
         curve, pa, pb, parts = curve[~done], pa[~done], pb[~done], parts[~done]
         step = np.repeat((pb - pa) / parts, parts)
         k = np.arange(parts.sum()) - np.repeat(np.cumsum(parts) - parts, parts)
         start = np.repeat(pa, parts) + k * step
         end = np.where(k == np.repeat(parts, parts) - 1, np.repeat(pb, parts), start + step)
         curve, pa, pb = np.repeat(curve, parts), start, end
-    for k in np.unique(curve).tolist():
-        if outcome[k] is None:
-            outcome[k] = f"its arcs do not fit within {tolerance * 1000:g} mm after {_MAX_ROUNDS} refinements"
-    return outcome
 
 
 def _s_of(curves, curve, p, used):
