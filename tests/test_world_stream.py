@@ -163,3 +163,25 @@ def test_streamed_drive_is_the_whole_world_drive(sample_build_dir, tmp_path):
             assert session.world.stream.drops > 0  # tiles came and went along the way
     assert outputs[False] == outputs[True]
     assert outputs[True][0]["lidar_scans"] > 100 and outputs[True][0]["distance_m"] > 300
+
+
+def test_stream_refuses_a_changed_body_file_when_its_tile_comes(sample_build_dir, tmp_path):
+    import shutil
+
+    from tavf_mapkit.errors import InputError
+
+    build = tmp_path / "build"
+    shutil.copytree(sample_build_dir / "collision", build / "collision")
+    client = pb.connect(pb.DIRECT)
+    try:
+        stream = TileStream(build, client, radius=10.0)
+        body = stream.catalogue.bodies[0]
+        (build / "collision" / body.file).write_text("v 0 0 0\n", encoding="ascii")
+        low, high = (np.array(v[:2]) for v in stream.entries[0]["bounds"])
+        with pytest.raises(InputError) as refused:
+            stream.cover((0.5 * (low + high) + stream.catalogue.origin[:2])[None])
+        assert str(refused.value) == (f"{build / 'collision' / body.file}: collision body {body.name} does not "
+                                      "match world.json (changed or truncated)")
+        assert pb.getNumBodies(physicsClientId=client) == len(stream.loaded_ids())  # no half-loaded tile
+    finally:
+        pb.disconnect(client)
