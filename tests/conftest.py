@@ -97,6 +97,12 @@ def jungfernstieg_build(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="session")
+def perth_build(tmp_path_factory) -> Path:
+    """A build of the zoo's Perth roundabouts (left-hand traffic, 81 roads; default stages), once per session."""
+    return _build(tmp_path_factory, "perth", shared_path("zoo", "osm", "AU_perth_peanut_roundabout_LHT.osm.gz"))
+
+
+@pytest.fixture(scope="session")
 def tavf_dlr_build(tmp_path_factory) -> Path:
     """A build of DLR's TAVF SUMO network (default stages), once per session."""
     return _build(tmp_path_factory, "tavf-dlr", shared_path("hamburg", "tavf_dlr_sumo_net", "network.net.xml.gz"))

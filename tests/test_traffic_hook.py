@@ -51,6 +51,18 @@ def test_ego_stops_at_red_and_keeps_off_traffic(sample_build_dir, tmp_path):
     assert (tmp_path / "a" / "trajectory.csv").read_bytes() == (tmp_path / "b" / "trajectory.csv").read_bytes()
 
 
+@pytest.mark.slow
+def test_a_car_that_teleports_leaves_the_traffic_running(perth_build, tmp_path):
+    """Perth, 30 cars, seed 0: at step 2855 a car jammed behind the ego starts to teleport and is removed. The
+    step's subscription results still held it, off the network (SUMO's invalid-value sentinel, a 2D position),
+    and its subscription outlived it: the snapshot failed, and the traffic hook was disabled for the rest of
+    the drive."""
+    drive(perth_build, tmp_path / "a", seed=0, duration=150, traffic=30)
+    on_disk = json.loads((tmp_path / "a" / "metrics.json").read_text())
+    assert on_disk["traffic"]["teleports_removed"] >= 1
+    assert on_disk["hook_errors"] == 0, on_disk.get("hook_error_messages")
+
+
 def _snapshot(xs, speeds, yaws=None, persons=None, signal_state=()):
     n = len(xs)
     persons = np.zeros(n, dtype=bool) if persons is None else np.asarray(persons)

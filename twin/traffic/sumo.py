@@ -361,6 +361,8 @@ class SumoTraffic:
             if vehicle_id == EGO_ID:
                 continue
             try:
+                # its subscription goes first: SUMO fails the next step on a subscription to a removed car
+                sumo_api.vehicle.unsubscribe(vehicle_id)
                 sumo_api.vehicle.remove(vehicle_id, tc.REMOVE_TELEPORT)
                 self.stats.teleports_removed += 1
             except sumo_api.TraCIException:
@@ -395,7 +397,8 @@ class SumoTraffic:
     def snapshot(self) -> TrafficSnapshot:
         vehicles = sumo_api.vehicle.getAllSubscriptionResults()
         persons = sumo_api.person.getAllSubscriptionResults()
-        vehicles.pop(EGO_ID, None)
+        # the step's results still hold the cars removed after it (teleporting: off the network, invalid values)
+        vehicles = {key: record for key, record in vehicles.items() if key in self._vehicles}
         records = list(vehicles.items()) + list(persons.items())
         n = len(records)
         is_person = np.zeros(n, dtype=bool)
