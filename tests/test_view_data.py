@@ -240,6 +240,27 @@ def test_gnss_trace_and_matched_path(sample_build_dir, sample_run):
     assert max(path.distance(shapely.Point(p)) for p in zip(x, y)) < 0.5
 
 
+@pytest.mark.parametrize("batch", [1, 7])
+def test_map_json_in_batches_is_the_whole_maps_json(sample_build_dir, sample_run, batch):
+    """The report's map text, made a few lanes at a time (map_json), is json.dumps of the whole map_data to the
+    byte: findings, repairs, GNSS trace and matched path included."""
+    from tavf_mapkit.opendrive import load_opendrive
+    from tavf_mapkit.view.mapdata import map_data, map_json, match_gnss
+
+    odr = load_opendrive(next(sample_build_dir.glob("*.xodr")))
+    findings = json.loads((sample_build_dir / "report" / "validate.json").read_text())["findings"]
+    manifest = json.loads((sample_build_dir / "manifest.json").read_text())
+    repairs = next(stage["facts"].get("repairs") for stage in manifest["stages"] if stage["name"] == "opendrive")
+    options = dict(name="sample", findings=findings, repairs=repairs, match=match_gnss(odr, sample_run / "gnss.csv"),
+                   attribution="(c) OpenStreetMap contributors", step=2.5)
+    extra = {"repair_counts": [{"repair": "x", "count": 1}], "findings_total": len(findings)}
+    whole = map_data(odr, **options) | extra
+    assert findings and whole["layers"]["gnss"]["features"] and whole["layers"]["marks"]["features"]
+    assert whole["lane_count"] > 3 * batch  # several batches
+    text = map_json(odr, **options, extra=extra, batch=batch)
+    assert text == json.dumps(whole, separators=(",", ":"), allow_nan=False)
+
+
 def test_view_without_a_display_serves_and_says_so(sample_build_dir):
     """Asked to open a browser where there is no display, mapkit view does not start one (a text browser would
     take the terminal, and the command would hang on it): it serves, says to open the address, and stops on

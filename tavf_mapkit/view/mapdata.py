@@ -24,27 +24,55 @@ TOLERANCE_M = 0.05   # display thinning (Douglas-Peucker in local metres, before
 DIGITS = 7           # decimals of lon/lat: 1.1 cm
 
 
+#: lane and mark features projected and encoded this many at a time by ``map_json``: as GeoJSON dicts a city's
+#: layers are about ten times their JSON text (Columbus: ~300 MiB of dicts for the lanes, 60 MB of text)
+FEATURE_BATCH = 20_000
+
+
 def map_data(odr, *, name: str, findings=(), repairs=None, match=None, attribution: str | None = None,
              step: float = STEP_M) -> dict:
     """Everything the 2D page draws, JSON-ready: {name, georeference, bounds, layers: {lanes, marks, signals,
     objects, junctions, findings, repairs, gnss, matched}}; ``findings`` are validation findings as dicts
     (rule, severity, road, lane, s, line, message), ``repairs`` the opendrive stage's ``repairs`` facts,
     ``match`` a (trace, MatchResult) pair."""
+    return _map_items(odr, name, findings, repairs, match, attribution, step, batch=None)
+
+
+def map_json(odr, *, name: str, findings=(), repairs=None, match=None, attribution: str | None = None,
+             step: float = STEP_M, extra: dict | None = None, batch: int = FEATURE_BATCH) -> str:
+    """``json.dumps(map_data(...) | extra, separators=(",", ":"), allow_nan=False)``, the same text, made
+    without holding the whole map as dicts: the lane and mark layers are projected and encoded ``batch``
+    features at a time (each feature is thinned and projected on its own, so batches change nothing)."""
+    data = _map_items(odr, name, findings, repairs, match, attribution, step, batch=batch) | (extra or {})
+    return _encode_object(data)
+
+
+def _map_items(odr, name, findings, repairs, match, attribution, step, batch: int | None) -> dict:
+    """map_data's dict; with a ``batch``, its layers are JSON text (and the lanes and marks made in batches)."""
     georef, placed = display_georeference(odr)
     project = _Projector(georef)
     from tavf_mapkit.opendrive.layers import layer_features
 
-    layers = {
-        "lanes": project.collection(layer_features(odr, "lane", step)),
-        "marks": project.collection(layer_features(odr, "road-mark", step)),
-        "signals": project.collection(layer_features(odr, "signal", step)),
-        "objects": project.collection(layer_features(odr, "object", step)),
-        "junctions": project.shapes(_junction_outlines(odr, step)),
-        "findings": project.points(*_finding_points(odr, findings)),
-        "repairs": project.points(*_repair_points(odr, repairs)),
-    }
+    def layer(value: dict) -> dict | str:
+        return value if batch is None else _JSONText(_dumps(value))
+
+    def collection(kind: str) -> tuple[dict | str, int]:
+        features = layer_features(odr, kind, step)
+        if batch is None:
+            value = project.collection(features)
+            return value, len(value["features"])
+        return project.collection_json(features, batch)
+
+    layers = {}
+    layers["lanes"], lane_count = collection("lane")
+    layers["marks"], _ = collection("road-mark")
+    layers["signals"] = layer(project.collection(layer_features(odr, "signal", step)))
+    layers["objects"] = layer(project.collection(layer_features(odr, "object", step)))
+    layers["junctions"] = layer(project.shapes(_junction_outlines(odr, step)))
+    layers["findings"] = layer(project.points(*_finding_points(odr, findings)))
+    layers["repairs"] = layer(project.points(*_repair_points(odr, repairs)))
     if match is not None:
-        layers.update(_gnss_layers(odr, project, *match))
+        layers.update({key: layer(value) for key, value in _gnss_layers(odr, project, *match).items()})
     lon, lat = (np.asarray(v) for v in georef.local_to_wgs84(*_corners(odr)))
     return {
         "name": name,
@@ -52,9 +80,25 @@ def map_data(odr, *, name: str, findings=(), repairs=None, match=None, attributi
         "placed_at_null_island": placed,
         "attribution": attribution,
         "bounds": [[float(lat.min()), float(lon.min())], [float(lat.max()), float(lon.max())]],
-        "lane_count": len(layers["lanes"]["features"]),
-        "layers": layers,
+        "lane_count": lane_count,
+        "layers": layers if batch is None else _JSONText(_encode_object(layers)),
     }
+
+
+def _dumps(value) -> str:
+    """The page's JSON encoding (view/page.py static_map)."""
+    return json.dumps(value, separators=(",", ":"), allow_nan=False)
+
+
+class _JSONText(str):
+    """A value already encoded (``_dumps``): written as it is."""
+
+
+def _encode_object(items: dict) -> str:
+    """``_dumps(items)``, with the values that are _JSONText as they are: json.dumps writes an object as
+    exactly this, its key:value pairs joined by commas."""
+    return "{" + ",".join(f"{_dumps(key)}:{value if isinstance(value, _JSONText) else _dumps(value)}"
+                          for key, value in items.items()) + "}"
 
 
 def display_georeference(odr):
@@ -110,6 +154,20 @@ class _Projector:
                                                                                   minlength=len(features)))[:-1])
         out = [geojson_feature(feature, points.tolist()) for feature, points in zip(features, vertices)]
         return {"type": "FeatureCollection", "features": out}
+
+    def collection_json(self, features, batch: int) -> tuple[str, int]:
+        """(``_dumps(self.collection(features))``, the number of features), ``batch`` features at a time:
+        only one batch's features and dicts are held, the rest is text."""
+        from itertools import islice
+
+        features = iter(features)
+        parts, count = [], 0
+        while chunk := list(islice(features, batch)):
+            out = self.collection(chunk)["features"]
+            count += len(out)
+            parts.append(_dumps(out)[1:-1])  # a list's items, without its brackets
+            del chunk, out
+        return _JSONText('{"type":"FeatureCollection","features":[' + ",".join(parts) + "]}"), count
 
     def shapes(self, shapes: dict) -> dict:
         """{id: shapely (Multi)Polygon} -> outlines as GeoJSON polygons."""

@@ -37,11 +37,11 @@ def _leaflet_css() -> str:
     return re.sub(r"url\(images/([\w.-]+\.png)\)", inline, css)
 
 
-def static_map(data: dict, *, element_id: str = "map", basemap: bool = False) -> tuple[str, str]:
-    """(head, body) HTML of a self-contained 2D map of ``data`` (mapdata.map_data): styles for the head,
-    the map's element and scripts for the body."""
+def static_map(data: dict | str, *, element_id: str = "map", basemap: bool = False) -> tuple[str, str]:
+    """(head, body) HTML of a self-contained 2D map of ``data`` (mapdata.map_data, or its JSON text as
+    mapdata.map_json makes it): styles for the head, the map's element and scripts for the body."""
     head = "<style>" + _leaflet_css() + (STATIC / "map2d.css").read_text(encoding="utf-8") + "</style>"
-    payload = json.dumps(data, separators=(",", ":"), allow_nan=False)
+    payload = data if isinstance(data, str) else json.dumps(data, separators=(",", ":"), allow_nan=False)
     body = (f"<div id='{element_id}' class='report-map'></div>"
             + _script((STATIC / "vendor" / "leaflet" / "leaflet.js").read_text(encoding="utf-8"))
             + _script((STATIC / "map2d.js").read_text(encoding="utf-8"))

@@ -76,8 +76,9 @@ class CheckStage(Stage):
         path = context.output_path("report/check.json")
         path.write_text(json.dumps(results, indent=2) + "\n", encoding="utf-8")
         files["check_report"] = "report/check.json"
-        html = context.output_path("report/index.html")
-        html.write_text(_html(results, context, _page_map(context, odr, findings, matched)), encoding="utf-8")
+        # the page is written in its parts: for a city its map is tens of megabytes of text, not to be copied
+        with context.output_path("report/index.html").open("w", encoding="utf-8") as html:
+            html.writelines(_html_parts(results, context, _page_map(context, odr, findings, matched)))
         files["check_html"] = "report/index.html"
         validate = results["validate"] or {}
         facts = {
@@ -286,25 +287,30 @@ def _page_map(context, odr, findings: list, matched) -> tuple[str, str]:
     from tavf_mapkit.errors import MapkitError
     from tavf_mapkit.pipeline.manifest import OSM_ATTRIBUTION
     from tavf_mapkit.pipeline.summary import derived_from_osm
-    from tavf_mapkit.view.mapdata import map_data, repair_counts
+    from tavf_mapkit.view.mapdata import map_json, repair_counts
     from tavf_mapkit.view.page import static_map
 
     repairs = (context.facts.get("opendrive") or {}).get("repairs")
     attribution = OSM_ATTRIBUTION if derived_from_osm(context.input_path, context.input_kind) else None
     try:
-        data = map_data(odr, name=context.name, findings=findings, repairs=repairs, match=matched,
-                        attribution=attribution, step=report_map_step(odr))
+        # as JSON text, made in batches of lanes: as dicts a city's map would hold hundreds of megabytes
+        data = map_json(odr, name=context.name, findings=findings, repairs=repairs, match=matched,
+                        attribution=attribution, step=report_map_step(odr),
+                        extra={"repair_counts": repair_counts(repairs), "findings_total": len(findings)})
     except MapkitError as error:
         context.note(f"report map skipped: {error}")
         return "", f"<p>The map could not be drawn: {error}</p>"
-    data["repair_counts"] = repair_counts(repairs)
-    data["findings_total"] = len(findings)
     return static_map(data)
 
 
 def _html(results: dict, context, page_map: tuple[str, str] = ("", "")) -> str:
     """One page, images and map embedded, no external resources: verdict, the 2D map (lanes, findings,
     repairs, GNSS), checks, findings per rule, repairs."""
+    return "".join(_html_parts(results, context, page_map))
+
+
+def _html_parts(results: dict, context, page_map: tuple[str, str] = ("", "")) -> tuple[str, str, str]:
+    """_html as (before the map's body, the map's body, after it), so the page is written without a copy."""
     import base64
     import html
 
@@ -360,7 +366,7 @@ def _html(results: dict, context, page_map: tuple[str, str] = ("", "")) -> str:
                      if repairs else "<p>None were needed.</p>" if results.get("repairs") is not None else
                      "<p>None recorded by the opendrive stage.</p>")
     status = results["status"]
-    return f"""<!doctype html>
+    before = f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>check: {html.escape(results['file'])}: {status}</title>
 <style>body{{font:14px sans-serif;margin:2em;max-width:70em}}td,th{{padding:.2em .8em;text-align:left}}
 tr.fail td,tr.error td{{color:#b00}}tr.fail td{{font-weight:bold}}tr.pass td:last-child{{color:#070}}
@@ -372,7 +378,8 @@ Details: check.json, validate.json, compare.json, match-trace.json in this folde
 <p>Lanes by type, junction outlines, road marks, signals and objects; every validation finding as a marker
 (click it: rule, road, lane, s); the roads the build repaired; the GNSS trace and its matched path. The same
 map with the 3D view and drive replays: <code>mapkit view BUILD [RUN ...]</code>.</p>
-{page_map[1]}
+"""
+    after = f"""
 <h2>Checks</h2>
 <table><tr><th>check</th><th>value</th><th>threshold</th><th></th></tr>{''.join(rows)}</table>
 <h2>Validation findings by rule</h2>
@@ -382,3 +389,4 @@ map with the 3D view and drive replays: <code>mapkit view BUILD [RUN ...]</code>
 {''.join(images)}
 </body></html>
 """
+    return before, page_map[1], after
