@@ -243,9 +243,10 @@ def test_gnss_trace_and_matched_path(sample_build_dir, sample_run):
 @pytest.mark.parametrize("batch", [1, 7])
 def test_map_json_in_batches_is_the_whole_maps_json(sample_build_dir, sample_run, batch):
     """The report's map text, made a few lanes at a time (map_json), is json.dumps of the whole map_data to the
-    byte: findings, repairs, GNSS trace and matched path included."""
+    byte: findings, repairs, GNSS trace and matched path included; and so is the page made of its pieces."""
     from tavf_mapkit.opendrive import load_opendrive
     from tavf_mapkit.view.mapdata import map_data, map_json, match_gnss
+    from tavf_mapkit.view.page import static_map, static_map_parts
 
     odr = load_opendrive(next(sample_build_dir.glob("*.xodr")))
     findings = json.loads((sample_build_dir / "report" / "validate.json").read_text())["findings"]
@@ -257,8 +258,11 @@ def test_map_json_in_batches_is_the_whole_maps_json(sample_build_dir, sample_run
     whole = map_data(odr, **options) | extra
     assert findings and whole["layers"]["gnss"]["features"] and whole["layers"]["marks"]["features"]
     assert whole["lane_count"] > 3 * batch  # several batches
-    text = map_json(odr, **options, extra=extra, batch=batch)
-    assert text == json.dumps(whole, separators=(",", ":"), allow_nan=False)
+    pieces = map_json(odr, **options, extra=extra, batch=batch)
+    assert len(pieces) > 3 and "".join(pieces) == json.dumps(whole, separators=(",", ":"), allow_nan=False)
+    # the page's body written from the pieces is the one made from the whole map (</ escaped the same)
+    head, body = static_map_parts(pieces)
+    assert (head, "".join(body)) == static_map(whole)
 
 
 def test_view_without_a_display_serves_and_says_so(sample_build_dir):

@@ -39,10 +39,11 @@ def map_data(odr, *, name: str, findings=(), repairs=None, match=None, attributi
 
 
 def map_json(odr, *, name: str, findings=(), repairs=None, match=None, attribution: str | None = None,
-             step: float = STEP_M, extra: dict | None = None, batch: int = FEATURE_BATCH) -> str:
-    """``json.dumps(map_data(...) | extra, separators=(",", ":"), allow_nan=False)``, the same text, made
-    without holding the whole map as dicts: the lane and mark layers are projected and encoded ``batch``
-    features at a time (each feature is thinned and projected on its own, so batches change nothing)."""
+             step: float = STEP_M, extra: dict | None = None, batch: int = FEATURE_BATCH) -> list[str]:
+    """``json.dumps(map_data(...) | extra, separators=(",", ":"), allow_nan=False)`` as pieces of text (joined,
+    the same text), made without holding the whole map as dicts: the lane and mark layers are projected and
+    encoded ``batch`` features at a time (each feature is thinned and projected on its own, so batches change
+    nothing). Pieces, so that a city's tens of megabytes are written without ever being copied into one."""
     data = _map_items(odr, name, findings, repairs, match, attribution, step, batch=batch) | (extra or {})
     return _encode_object(data)
 
@@ -53,10 +54,10 @@ def _map_items(odr, name, findings, repairs, match, attribution, step, batch: in
     project = _Projector(georef)
     from tavf_mapkit.opendrive.layers import layer_features
 
-    def layer(value: dict) -> dict | str:
-        return value if batch is None else _JSONText(_dumps(value))
+    def layer(value: dict) -> dict | _JSONText:
+        return value if batch is None else _JSONText([_dumps(value)])
 
-    def collection(kind: str) -> tuple[dict | str, int]:
+    def collection(kind: str) -> tuple[dict | _JSONText, int]:
         features = layer_features(odr, kind, step)
         if batch is None:
             value = project.collection(features)
@@ -90,15 +91,19 @@ def _dumps(value) -> str:
     return json.dumps(value, separators=(",", ":"), allow_nan=False)
 
 
-class _JSONText(str):
-    """A value already encoded (``_dumps``): written as it is."""
+class _JSONText(list):
+    """A value already encoded (``_dumps``), as pieces of text that are written one after the other."""
 
 
-def _encode_object(items: dict) -> str:
-    """``_dumps(items)``, with the values that are _JSONText as they are: json.dumps writes an object as
-    exactly this, its key:value pairs joined by commas."""
-    return "{" + ",".join(f"{_dumps(key)}:{value if isinstance(value, _JSONText) else _dumps(value)}"
-                          for key, value in items.items()) + "}"
+def _encode_object(items: dict) -> list[str]:
+    """``_dumps(items)`` as pieces, with the values that are _JSONText as they are: json.dumps writes an
+    object as exactly this, its key:value pairs joined by commas."""
+    pieces = ["{"]
+    for k, (key, value) in enumerate(items.items()):
+        pieces.append(("," if k else "") + _dumps(key) + ":")
+        pieces.extend(value if isinstance(value, _JSONText) else [_dumps(value)])
+    pieces.append("}")
+    return pieces
 
 
 def display_georeference(odr):
@@ -155,9 +160,9 @@ class _Projector:
         out = [geojson_feature(feature, points.tolist()) for feature, points in zip(features, vertices)]
         return {"type": "FeatureCollection", "features": out}
 
-    def collection_json(self, features, batch: int) -> tuple[str, int]:
-        """(``_dumps(self.collection(features))``, the number of features), ``batch`` features at a time:
-        only one batch's features and dicts are held, the rest is text."""
+    def collection_json(self, features, batch: int) -> tuple[_JSONText, int]:
+        """(``_dumps(self.collection(features))`` as pieces, the number of features), ``batch`` features at a
+        time: only one batch's features and dicts are held, the rest is text."""
         from itertools import islice
 
         features = iter(features)
@@ -165,9 +170,9 @@ class _Projector:
         while chunk := list(islice(features, batch)):
             out = self.collection(chunk)["features"]
             count += len(out)
-            parts.append(_dumps(out)[1:-1])  # a list's items, without its brackets
+            parts.append(("," if parts else "") + _dumps(out)[1:-1])  # a list's items, without its brackets
             del chunk, out
-        return _JSONText('{"type":"FeatureCollection","features":[' + ",".join(parts) + "]}"), count
+        return _JSONText(['{"type":"FeatureCollection","features":[', *parts, "]}"]), count
 
     def shapes(self, shapes: dict) -> dict:
         """{id: shapely (Multi)Polygon} -> outlines as GeoJSON polygons."""

@@ -37,16 +37,26 @@ def _leaflet_css() -> str:
     return re.sub(r"url\(images/([\w.-]+\.png)\)", inline, css)
 
 
-def static_map(data: dict | str, *, element_id: str = "map", basemap: bool = False) -> tuple[str, str]:
-    """(head, body) HTML of a self-contained 2D map of ``data`` (mapdata.map_data, or its JSON text as
-    mapdata.map_json makes it): styles for the head, the map's element and scripts for the body."""
+def static_map(data: dict, *, element_id: str = "map", basemap: bool = False) -> tuple[str, str]:
+    """(head, body) HTML of a self-contained 2D map of ``data`` (mapdata.map_data): styles for the head,
+    the map's element and scripts for the body."""
+    head, body = static_map_parts(json.dumps(data, separators=(",", ":"), allow_nan=False),
+                                  element_id=element_id, basemap=basemap)
+    return head, "".join(body)
+
+
+def static_map_parts(payload, *, element_id: str = "map", basemap: bool = False) -> tuple[str, list[str]]:
+    """static_map of the map's JSON text, given as a string or as pieces (mapdata.map_json), with the body
+    as pieces: a city's map is tens of megabytes, written piece by piece instead of copied into one string."""
     head = "<style>" + _leaflet_css() + (STATIC / "map2d.css").read_text(encoding="utf-8") + "</style>"
-    payload = data if isinstance(data, str) else json.dumps(data, separators=(",", ":"), allow_nan=False)
-    body = (f"<div id='{element_id}' class='report-map'></div>"
+    pieces = [payload] if isinstance(payload, str) else payload
+    body = [f"<div id='{element_id}' class='report-map'></div>"
             + _script((STATIC / "vendor" / "leaflet" / "leaflet.js").read_text(encoding="utf-8"))
-            + _script((STATIC / "map2d.js").read_text(encoding="utf-8"))
-            + _script(f"window.MAPKIT_DATA = {payload};\n"
-                      f"window.mapkit = {{data: window.MAPKIT_DATA, map2d: window.MapkitMap2D("
-                      f"document.getElementById({json.dumps(element_id)}), window.MAPKIT_DATA, "
-                      f"{json.dumps({'basemap': bool(basemap)})})}};"))
+            + _script((STATIC / "map2d.js").read_text(encoding="utf-8")) + "<script>window.MAPKIT_DATA = "]
+    # _script's escape piece by piece: no piece ends in "<" (JSON text ends a piece with a value or a
+    # separator), so no "</" is split between two
+    body += [piece.replace("</", "<\\/") for piece in pieces]
+    body.append((f";\nwindow.mapkit = {{data: window.MAPKIT_DATA, map2d: window.MapkitMap2D("
+                 f"document.getElementById({json.dumps(element_id)}), window.MAPKIT_DATA, "
+                 f"{json.dumps({'basemap': bool(basemap)})})}};").replace("</", "<\\/") + "</script>")
     return head, body

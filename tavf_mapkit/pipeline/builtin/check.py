@@ -281,14 +281,14 @@ def report_map_step(odr) -> float:
     return max(STEP_M, lane_length / REPORT_MAP_SAMPLES)
 
 
-def _page_map(context, odr, findings: list, matched) -> tuple[str, str]:
+def _page_map(context, odr, findings: list, matched) -> tuple[str, str | list[str]]:
     """(head, body) of the page's 2D map (tavf_mapkit.view: the same map as ``mapkit view``), or a note
     when the map cannot be drawn (the check itself stands)."""
     from tavf_mapkit.errors import MapkitError
     from tavf_mapkit.pipeline.manifest import OSM_ATTRIBUTION
     from tavf_mapkit.pipeline.summary import derived_from_osm
     from tavf_mapkit.view.mapdata import map_json, repair_counts
-    from tavf_mapkit.view.page import static_map
+    from tavf_mapkit.view.page import static_map_parts
 
     repairs = (context.facts.get("opendrive") or {}).get("repairs")
     attribution = OSM_ATTRIBUTION if derived_from_osm(context.input_path, context.input_kind) else None
@@ -300,17 +300,18 @@ def _page_map(context, odr, findings: list, matched) -> tuple[str, str]:
     except MapkitError as error:
         context.note(f"report map skipped: {error}")
         return "", f"<p>The map could not be drawn: {error}</p>"
-    return static_map(data)
+    return static_map_parts(data)
 
 
-def _html(results: dict, context, page_map: tuple[str, str] = ("", "")) -> str:
+def _html(results: dict, context, page_map: tuple[str, str | list[str]] = ("", "")) -> str:
     """One page, images and map embedded, no external resources: verdict, the 2D map (lanes, findings,
     repairs, GNSS), checks, findings per rule, repairs."""
     return "".join(_html_parts(results, context, page_map))
 
 
-def _html_parts(results: dict, context, page_map: tuple[str, str] = ("", "")) -> tuple[str, str, str]:
-    """_html as (before the map's body, the map's body, after it), so the page is written without a copy."""
+def _html_parts(results: dict, context, page_map: tuple[str, str | list[str]] = ("", "")) -> list[str]:
+    """_html as pieces: before the map's body, the map's body (a string or its pieces), after it; so the page
+    is written without a copy of the map."""
     import base64
     import html
 
@@ -389,4 +390,5 @@ map with the 3D view and drive replays: <code>mapkit view BUILD [RUN ...]</code>
 {''.join(images)}
 </body></html>
 """
-    return before, page_map[1], after
+    body = page_map[1]
+    return [before, *([body] if isinstance(body, str) else body), after]
