@@ -192,9 +192,10 @@ def _contacts(ctx):
     return contacts
 
 
-def _end_border_table(ctx) -> dict:
-    """(road id, end) -> {lane id: (inner xy, outer xy)} at both ends of every road, vectorised over
-    SECTIONS_PER_BATCH lane sections at a time (memory bounded by the batch, not the map).
+def _end_border_table(ctx) -> tuple[dict, np.ndarray]:
+    """({(road id, end, lane id): row}, rows of inner x, y, outer x, y) at both ends of every road, vectorised
+    over SECTIONS_PER_BATCH lane sections at a time (memory bounded by the batch, not the map). Rows of one
+    array, not a pair of points per lane end: a city has hundreds of thousands of lane ends.
 
     A sampling step longer than any road yields exactly the start and end of every lane section.
     """
@@ -206,6 +207,8 @@ def _end_border_table(ctx) -> dict:
     odr = ctx.odr
     arrays = odr.arrays
     table: dict = {}
+    rows = []
+    count = 0
     if len(arrays.lane_id):
         step = float(arrays.road_length.max(initial=0.0)) + 1e6
         first_section = np.r_[True, arrays.section_road[1:] != arrays.section_road[:-1]]
@@ -223,18 +226,24 @@ def _end_border_table(ctx) -> dict:
             roads, lane_id = odr.roads, sampling.lane_id
             # a key comes from one side only, so filling side by side per batch gives the whole map's table
             for mask, side in ((at_start, "start"), (at_end, "end")):
-                for k in np.flatnonzero(mask):
-                    key = (roads[road_index[k]].id, side)
-                    table.setdefault(key, {})[int(lane_id[k])] = (inner[k], outer[k])
-    cache["value"] = table
-    return table
+                picked = np.flatnonzero(mask)
+                rows.append(np.column_stack([inner[picked], outer[picked]]))
+                for row, k in enumerate(picked, start=count):
+                    table[(roads[road_index[k]].id, side, int(lane_id[k]))] = row
+                count += len(picked)
+    cache["value"] = table, np.concatenate(rows) if rows else np.zeros((0, 4))
+    return cache["value"]
 
 
-def _end_borders(ctx, road, side) -> dict:
-    """lane id -> (inner xy, outer xy) at a road end; None -> the reference line's end point."""
-    ends = ctx.road_ends
-    point = ends.at(ctx.odr.road_index[road.id], side)[0]
-    return {None: (point, point), **_end_border_table(ctx).get((road.id, side), {})}
+def _end_border(ctx, road, side, lane):
+    """(inner xy, outer xy) of a lane at a road end, None where the lane is not there; lane None -> the
+    reference line's end point (twice)."""
+    if lane is None:
+        point = ctx.road_ends.at(ctx.odr.road_index[road.id], side)[0]
+        return point, point
+    table, xy = _end_border_table(ctx)
+    row = table.get((road.id, side, lane))
+    return None if row is None else (xy[row, :2], xy[row, 2:])
 
 
 def _contact_geometry(ctx, contacts):
@@ -243,18 +252,20 @@ def _contact_geometry(ctx, contacts):
     if "value" in cache:
         return cache["value"]
     ends, index = ctx.road_ends, ctx.odr.road_index
-    nowhere = (np.zeros(2), np.zeros(2))
-    points, headings, comparable = [], [], []
-    for road, side, lane, other, other_side, other_lane, _, _ in contacts:
-        a, b = _end_borders(ctx, road, side), _end_borders(ctx, other, other_side)
+    xy = np.zeros((len(contacts), 4, 2))
+    headings = np.empty(len(contacts))
+    comparable = np.zeros(len(contacts), dtype=bool)
+    for k, (road, side, lane, other, other_side, other_lane, _, _) in enumerate(contacts):
+        a, b = _end_border(ctx, road, side, lane), _end_border(ctx, other, other_side, other_lane)
         # a lane missing at an end (e.g. a zero-length last section) gives nothing to compare
-        comparable.append(lane in a and other_lane in b)
-        points.append((*a.get(lane, nowhere), *b.get(other_lane, nowhere)))
-        headings.append(ends.at(index[road.id], side)[1] - ends.at(index[other.id], other_side)[1])
-    xy = np.asarray(points, dtype=float).reshape(len(contacts), 4, 2)
+        comparable[k] = a is not None and b is not None
+        if a is not None:
+            xy[k, 0], xy[k, 1] = a
+        if b is not None:
+            xy[k, 2], xy[k, 3] = b
+        headings[k] = ends.at(index[road.id], side)[1] - ends.at(index[other.id], other_side)[1]
     distance = np.maximum(np.hypot(*(xy[:, 0] - xy[:, 2]).T), np.hypot(*(xy[:, 1] - xy[:, 3]).T))
-    heading = np.degrees(np.abs(angle_difference(np.asarray(headings), np.pi)))
-    comparable = np.asarray(comparable)
+    heading = np.degrees(np.abs(angle_difference(headings, np.pi)))
     cache["value"] = (np.where(comparable, distance, 0.0), np.where(comparable, heading, 0.0))
     ctx.notes.pop("_end_borders", None)  # nothing else reads the border table: it need not outlive this
     return cache["value"]
