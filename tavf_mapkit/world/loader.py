@@ -37,6 +37,26 @@ def read_world(path: str | Path) -> dict:
     return world
 
 
+def collision_shape(entry: dict, folder: Path, physics_client_id: int, verify: bool = True) -> int:
+    """The pybullet collision shape of one world.json body, its OBJ checked against the recorded sha256."""
+    import pybullet
+
+    path = folder / entry["file"]
+    try:
+        data = path.read_bytes()
+    except OSError as error:
+        raise InputError(f"collision body {entry['name']}: {error.strerror}", file=str(path)) from None
+    if verify and hashlib.sha256(data).hexdigest() != entry.get("sha256"):
+        raise InputError(f"collision body {entry['name']} does not match world.json (changed or truncated)",
+                         file=str(path))
+    shape = pybullet.createCollisionShape(pybullet.GEOM_MESH, fileName=str(path),
+                                          flags=pybullet.GEOM_FORCE_CONCAVE_TRIMESH,
+                                          physicsClientId=physics_client_id)
+    if shape < 0:
+        raise InputError(f"pybullet could not load collision body {entry['name']}", file=str(path))
+    return shape
+
+
 def load(build_dir: str | Path, physics_client_id: int = 0, verify: bool = True) -> WorldBodies:
     """Create one static concave-mesh body per entry of world.json in the given pybullet client.
 
@@ -50,19 +70,7 @@ def load(build_dir: str | Path, physics_client_id: int = 0, verify: bool = True)
     folder = file.parent
     bodies = []
     for entry in world.get("bodies", []):
-        path = folder / entry["file"]
-        try:
-            data = path.read_bytes()
-        except OSError as error:
-            raise InputError(f"collision body {entry['name']}: {error.strerror}", file=str(path)) from None
-        if verify and hashlib.sha256(data).hexdigest() != entry.get("sha256"):
-            raise InputError(f"collision body {entry['name']} does not match world.json (changed or truncated)",
-                             file=str(path))
-        shape = pybullet.createCollisionShape(pybullet.GEOM_MESH, fileName=str(path),
-                                              flags=pybullet.GEOM_FORCE_CONCAVE_TRIMESH,
-                                              physicsClientId=physics_client_id)
-        if shape < 0:
-            raise InputError(f"pybullet could not load collision body {entry['name']}", file=str(path))
+        shape = collision_shape(entry, folder, physics_client_id, verify)
         body_id = pybullet.createMultiBody(baseMass=0, baseCollisionShapeIndex=shape,
                                            physicsClientId=physics_client_id)
         bodies.append(Body(entry["name"], entry["tile"], entry["group"], body_id, entry["file"]))

@@ -14,13 +14,10 @@ which is the pybullet id ``load`` gives it in a fresh client (``world_ids`` tran
 
 from __future__ import annotations
 
-import hashlib
-
 import numpy as np
 
-from tavf_mapkit.errors import InputError
 from tavf_mapkit.world.bodies import Body, WorldBodies
-from tavf_mapkit.world.loader import read_world, world_file
+from tavf_mapkit.world.loader import collision_shape, read_world, world_file
 
 
 class TileStream:
@@ -147,25 +144,8 @@ class TileStream:
         return body
 
     def _shape(self, k: int) -> int:
-        """The collision shape of body ``k`` from its OBJ (checked against world.json's sha256)."""
-        import pybullet
-
-        entry = self.entries[k]
-        path = self.folder / entry["file"]
-        if self.verify:
-            try:
-                data = path.read_bytes()
-            except OSError as error:
-                raise InputError(f"collision body {entry['name']}: {error.strerror}", file=str(path)) from None
-            if hashlib.sha256(data).hexdigest() != entry.get("sha256"):
-                raise InputError(f"collision body {entry['name']} does not match world.json (changed or "
-                                 "truncated)", file=str(path))
-        shape = pybullet.createCollisionShape(pybullet.GEOM_MESH, fileName=str(path),
-                                              flags=pybullet.GEOM_FORCE_CONCAVE_TRIMESH,
-                                              physicsClientId=self.client_id)
-        if shape < 0:
-            raise InputError(f"pybullet could not load collision body {entry['name']}", file=str(path))
-        return shape
+        """The collision shape of body ``k`` (the loader's, checked against world.json's sha256)."""
+        return collision_shape(self.entries[k], self.folder, self.client_id, self.verify)
 
     def _remove(self, body: int) -> None:
         import pybullet
