@@ -121,7 +121,8 @@ def test_help_starts_with_an_example_of_the_command(path, command):
 @pytest.mark.parametrize("root", sorted(GROUPS))
 def test_verbosity_sets_the_log_level_once_for_every_subcommand(root, tmp_path):
     """`ROOT -v CMD` logs at INFO, `ROOT -vv` at DEBUG, `ROOT -q` only errors: the group sets the level before
-    the subcommand runs (here one that stops at once on a missing input)."""
+    the subcommand runs (here one that stops at once on a missing input). Users type the flags after the
+    subcommand too (`mapkit validate -q map.xodr`): the same levels, still set by the group."""
     missing = str(tmp_path / "missing")
     command = ["drive", "--map", missing, "--random"] if root == "twin" else ["info", missing + ".xodr"]
     logger = logging.getLogger()
@@ -129,10 +130,15 @@ def test_verbosity_sets_the_log_level_once_for_every_subcommand(root, tmp_path):
     try:
         for flags, level in ((["-q"], logging.ERROR), ([], logging.WARNING), (["-v"], logging.INFO),
                              (["-vv"], logging.DEBUG), (["-v", "-q"], logging.WARNING)):
-            logger.setLevel(logging.CRITICAL)
-            result = CliRunner().invoke(GROUPS[root], [*flags, *command])
-            assert result.exit_code == 2 and "missing" in result.output, result.output
-            assert logger.level == level, (flags, logging.getLevelName(logger.level))
+            for args in ([*flags, *command], [command[0], *flags, *command[1:]], [*command, *flags]):
+                logger.setLevel(logging.CRITICAL)
+                result = CliRunner().invoke(GROUPS[root], args)
+                assert result.exit_code == 2 and "missing" in result.output, result.output
+                assert logger.level == level, (args, logging.getLevelName(logger.level))
+        # one -v before the subcommand and one -q after it cancel out
+        logger.setLevel(logging.CRITICAL)
+        CliRunner().invoke(GROUPS[root], ["-v", *command, "-q"])
+        assert logger.level == logging.WARNING
     finally:
         logger.setLevel(before)
 
@@ -156,6 +162,17 @@ def test_old_spellings_still_work_for_one_release_with_one_line_on_stderr(tmp_pa
     assert served.stderr.splitlines() == [
         "twin udm serve: --seed is deprecated, use --map (the old spelling goes in the next release)",
         f"Error: {tmp_path / 'nope'}: the --map build folder does not exist"]
+
+
+def test_verbosity_after_the_subcommand_leaves_its_own_options_and_double_dash_alone():
+    from tavf_mapkit.cli.options import verbosity_tokens
+
+    assert verbosity_tokens(["a.xodr", "-vv", "--quiet", "-q", "--json"], own={"--json"}) == (["a.xodr", "--json"], 0)
+    assert verbosity_tokens(["-q", "x", "--", "-v"], own={"-q", "--quiet"}) == (["-q", "x", "--", "-v"], 0)
+    assert verbosity_tokens(["-qv", "-vx", "-"], own=set()) == (["-qv", "-vx", "-"], 0)
+    # build and sweep keep their own -q (no progress lines) and take -v after the command
+    build = CliRunner().invoke(mapkit_cli, ["build", "/nonexistent/in.osm", "-q", "-v"])
+    assert build.exit_code == 2 and "No such option" not in build.output
 
 
 def test_respelling_leaves_arguments_after_double_dash_and_option_values_alone():

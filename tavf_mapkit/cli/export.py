@@ -156,7 +156,7 @@ def _transform(odr, crs: str, name: str):
         import pyproj
 
         pyproj.CRS.from_user_input(crs)
-    except Exception:
+    except pyproj.exceptions.CRSError:
         raise click.BadParameter(f"{crs!r} is not a CRS PROJ understands (try EPSG:25832)", param_hint="--crs")
     return lambda x, y: geo.local_to_crs(x, y, crs)
 

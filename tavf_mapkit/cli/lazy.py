@@ -7,11 +7,11 @@ import sys
 
 import click
 
-from tavf_mapkit.cli.options import Command
+from tavf_mapkit.cli.options import Command, VerbosityAnywhere
 from tavf_mapkit.errors import MapkitError
 
 
-class LazyGroup(click.Group):
+class LazyGroup(VerbosityAnywhere):
     """Subcommands are ``{name: "package.module:attribute"}``; importing them lazily keeps ``--help`` fast."""
 
     command_class = Command  # ``@group.command(renamed=...)`` understands the spellings of the last release

@@ -38,7 +38,7 @@ def cli() -> None:
     $ mapkit validate map.xodr --json | jq .summary
 
     Every command writes its output where -o/--output says and prints JSON for machines with --json
-    (--format names a file format); -v/-q before the command set how much it logs.
+    (--format names a file format); -v/-q (before or after the command) set how much it logs.
     """
 
 

@@ -60,6 +60,7 @@ def area_from(bbox, polygon: Path | None):
 # -- verbosity: -v/-q belong to the group, which configures logging once for every subcommand ----------------
 
 _VERBOSITY = "tavf.verbosity"  # key in click's ctx.meta, which the group's context shares with its subcommands
+_VERBOSITY_AFTER = "tavf.verbosity-after"  # -v/-q typed after the subcommand (VerbosityAnywhere)
 _LEVELS = {-1: logging.ERROR, 0: logging.WARNING, 1: logging.INFO, 2: logging.DEBUG}
 
 
@@ -71,7 +72,7 @@ def verbosity_options(group_function):
                   help="Log errors only, and no progress lines (same as the -q of build and sweep).")
     @functools.wraps(group_function)
     def group(verbose: int, quiet: int, **kwargs):
-        set_verbosity(verbose - quiet)
+        set_verbosity(verbose - quiet + click.get_current_context().meta.pop(_VERBOSITY_AFTER, 0))
         return group_function(**kwargs)
 
     return group
@@ -119,7 +120,45 @@ class Command(click.Command):
         return super().parse_args(ctx, args)
 
 
-class Group(click.Group):
+class VerbosityAnywhere(click.Group):
+    """A group whose -v/-q may also follow the subcommand (``mapkit validate -q map.xodr``), as users type it.
+
+    The tokens are taken out of the subcommand's arguments and added to the group's count, so logging is still
+    configured once, here; a subcommand with its own -q/--quiet (build, sweep) keeps it.
+    """
+
+    def resolve_command(self, ctx: click.Context, args: list[str]):
+        name, command, rest = super().resolve_command(ctx, args)
+        if command is not None and not isinstance(command, click.Group):
+            rest, change = verbosity_tokens(rest, own={n for p in command.params for n in getattr(p, "opts", ())})
+            # click resolves the subcommand before it runs the group's callback, which sets the level
+            ctx.meta[_VERBOSITY_AFTER] = change
+        return name, command, rest
+
+
+def verbosity_tokens(args: list[str], own: set[str]) -> tuple[list[str], int]:
+    """(``args`` without the -v/-vv/--verbose/-q/--quiet tokens the command does not define itself, their count:
+    +1 per v, -1 per q). Nothing after ``--`` is touched."""
+    kept: list[str] = []
+    change = 0
+    for index, token in enumerate(args):
+        if token == "--":
+            kept += args[index:]
+            break
+        if token in own:
+            kept.append(token)
+        elif token in ("--verbose", "--quiet"):
+            change += 1 if token == "--verbose" else -1
+        elif len(token) > 1 and token[0] == "-" and set(token[1:]) <= {"v"} and "-v" not in own:
+            change += len(token) - 1
+        elif len(token) > 1 and token[0] == "-" and set(token[1:]) <= {"q"} and "-q" not in own:
+            change -= len(token) - 1
+        else:
+            kept.append(token)
+    return kept, change
+
+
+class Group(VerbosityAnywhere):
     """A group whose subcommands (made with ``@group.command()``) are :class:`Command` s."""
 
     command_class = Command

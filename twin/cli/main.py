@@ -28,7 +28,7 @@ def cli() -> None:
     $ twin -v drive --map build/sample --random -o runs/sample --json
 
     Every command writes its output where -o/--output says and prints JSON for machines with --json;
-    -v/-q before the command set how much it logs.
+    -v/-q (before or after the command) set how much it logs.
     """
 
 
