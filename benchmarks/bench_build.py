@@ -123,7 +123,7 @@ def stage_by_stage(source: Path, stages: list[str], scratch: Path, options: list
         before = max((r["peak_rss_mib"]["mapkit"] for r in ran if r is not mine and records.index(r)
                       < records.index(mine)), default=0.0) if mine else 0.0
         # the manifest's peaks are the process's maxima so far: the stage's own when it rose above the stages
-        # that ran before it in this process (a rebuild reruns netconvert and the opendrive stage), else at most
+        # that ran before it in this process (a stage whose inputs changed runs again), else at most
         # the figure before
         own = None if mine is None else mine["peak_rss_mib"]["mapkit"]
         rows.append({"stage": stage, "wall_s": figures["wall"], "peak_rss_mib": figures["peak_rss_mib"],

@@ -37,17 +37,10 @@ def statuses(folder: Path) -> dict[str, str]:
     return {record["name"]: record["status"] for record in manifest(folder)["stages"]}
 
 
-#: stages a rebuild of an unchanged input reruns: the opendrive stage repaired netconvert's NAME.xodr (its
-#: paramPoly3 @length, docs/build-folder.md), so netconvert's own file is gone and both run again; the repaired
-#: file comes out byte-identical, so the stages that read it are reused; the report reads netconvert's new
-#: NAME.net.xml, whose header carries netconvert's time stamp
-RERUN_AFTER_REPAIR = {"netconvert", "opendrive", "report"}
-
-
 def reused(folder: Path) -> bool:
-    """Every stage of the build reused, except the ones a repaired NAME.xodr makes rerun."""
-    return all(status in ("unchanged", "unavailable") or name in RERUN_AFTER_REPAIR
-               for name, status in statuses(folder).items())
+    """Every stage of the build reused: netconvert's OpenDRIVE has a place of its own (netconvert/NAME.xodr), so
+    the repaired NAME.xodr does not make a rebuild run netconvert and the repairs again."""
+    return all(status in ("unchanged", "unavailable") for status in statuses(folder).values())
 
 
 def snapshot(folder: Path) -> dict[str, bytes]:
@@ -178,10 +171,9 @@ def test_rebuild_of_unchanged_input_reuses_every_stage(existing_build):
     assert result.exit_code == 0
     assert reused(existing_build), statuses(existing_build)
     after = manifest(existing_build)
-    # same outputs, byte for byte (sha256) -- but for the time stamp in the header of netconvert's rerun NAME.net.xml
-    stamped = {"net": {**after["artifacts"]["net"], "sha256": before["artifacts"]["net"]["sha256"]}}
-    assert {**after["artifacts"], **stamped} == before["artifacts"]
-    assert (existing_build / f"{existing_build.name}.xodr").is_file()
+    assert after["artifacts"] == before["artifacts"]  # same outputs, byte for byte (sha256)
+    name = existing_build.name
+    assert (existing_build / f"{name}.xodr").is_file() and (existing_build / "netconvert" / f"{name}.xodr").is_file()
 
 
 def test_force_reruns_every_stage(existing_build):
@@ -588,3 +580,37 @@ def test_damaged_mesh_stage_files_are_made_again_not_trusted(sample_build, tmp_p
     assert meshed.labelled(0.05, 100.0, osm) is None
     (mesh / "mesh.json").write_text("{")
     assert _MeshStageOutput(SimpleNamespace(artifacts={"mesh": mesh})).origin() is None
+
+
+@pytest.mark.parametrize("damage", ["truncated", "not a zip"])
+def test_collision_stage_meshes_anew_when_a_labelled_tile_is_damaged(sample_build, tmp_path, damage):
+    # the stage reads each labelled tile once, while it builds; a damaged one is found then, the half-built world
+    # is dropped and the stage meshes the map itself: the same world, nothing reused, no staging folder left
+    import shutil
+
+    from tavf_mapkit.pipeline.builtin.collision import CollisionStage
+    from tavf_mapkit.pipeline.config import load_pipeline
+    from tavf_mapkit.pipeline.context import BuildContext
+
+    name = sample_build.name
+    folder = tmp_path / name
+    for part in ("mesh", "source"):
+        shutil.copytree(sample_build / part, folder / part)
+    shutil.copy(sample_build / f"{name}.xodr", folder / f"{name}.xodr")
+    tiles = sorted((folder / "mesh" / "labelled").glob("tile_*.npz"))
+    damaged = tiles[len(tiles) // 2]
+    data = damaged.read_bytes()
+    damaged.write_bytes(data[: len(data) // 2] if damage == "truncated" else b"not a zip")
+    context = BuildContext(name=name, folder=folder, input_path=sample_build / "source" / f"{name}.osm",
+                           input_kind="osm", config=load_pipeline(None),
+                           artifacts={"xodr": folder / f"{name}.xodr", "mesh": folder / "mesh",
+                                      "source": folder / "source" / f"{name}.osm"})
+    facts = CollisionStage().run(context).facts
+    assert facts["reused"] == []
+    expected = sample_build / "collision"
+    assert (folder / "collision" / "world.json").read_bytes() == (expected / "world.json").read_bytes()
+    made = sorted(path.name for path in (folder / "collision" / "tiles").iterdir())
+    assert made == sorted(path.name for path in (expected / "tiles").iterdir())
+    for tile in made:
+        assert (folder / "collision" / "tiles" / tile).read_bytes() == (expected / "tiles" / tile).read_bytes()
+    assert sorted(path.name for path in folder.iterdir()) == ["collision", "mesh", f"{name}.xodr", "source"]

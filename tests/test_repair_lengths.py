@@ -324,8 +324,9 @@ def test_no_repair_keeps_netconvert_file_and_a_build_repairs_it(tmp_path):
     manifest = json.loads((out / "manifest.json").read_text())
     opendrive = stage(manifest, "opendrive")
     assert opendrive["options"] == {"repair": False} and opendrive["facts"]["repair"] is False
-    assert manifest["artifacts"]["xodr"]["stage"] == "netconvert"
+    assert manifest["artifacts"]["xodr"]["stage"] == "opendrive"
     assert manifest["artifacts"]["xodr"]["sha256"] == stage(manifest, "netconvert")["outputs"]["xodr"]["sha256"]
+    assert (out / "sample.xodr").read_bytes() == (out / "netconvert" / "sample.xodr").read_bytes()
     raw = validate_file(out / "sample.xodr")
     assert raw.by_rule("geometry.param-poly3-length") or raw.by_rule("geometry.gap")
 

@@ -1,4 +1,6 @@
-"""Stage "netconvert": source -> NAME.net.xml + NAME.xodr with a profile (see tavf_mapkit.netconvert)."""
+"""Stage "netconvert": source -> NAME.net.xml + netconvert/NAME.xodr with a profile (see tavf_mapkit.netconvert).
+
+The opendrive stage reads netconvert's OpenDRIVE and writes the build's NAME.xodr from it."""
 
 from __future__ import annotations
 
@@ -9,13 +11,18 @@ from tavf_mapkit.pipeline.context import BuildContext
 from tavf_mapkit.pipeline.stages import Stage, StageOutput, register_stage
 
 
+#: where netconvert's own OpenDRIVE goes in the build folder (the build's NAME.xodr is the opendrive stage's)
+RAW_XODR = "netconvert/{name}.xodr"
+
+
 @register_stage("netconvert")
 class NetconvertStage(Stage):
     inputs = ("source",)
     input_kinds = ("osm", "sumo-net")
     # 2: local (0, 0) at the projection origin (no <offset>); 3: driving side (--lefthand); 4: the projection
     # centred on the road network when the extract's centre lies far from it
-    version = "4"
+    # 5: its OpenDRIVE is netconvert/NAME.xodr (the opendrive stage writes NAME.xodr)
+    version = "5"
     description = "SUMO netconvert: road network and OpenDRIVE"
 
     def options(self, context: BuildContext) -> dict:
@@ -40,7 +47,10 @@ class NetconvertStage(Stage):
 
         settings = context.section("netconvert")
         profile = load_profile(settings.get("profile", DEFAULT_PROFILE))
-        net, xodr, log = f"{context.name}.net.xml", f"{context.name}.xodr", "logs/netconvert.log"
+        # netconvert's OpenDRIVE gets a place of its own: the opendrive stage writes the repaired NAME.xodr, and a
+        # file that a later stage replaced would make every rebuild run netconvert and the repairs again
+        net, xodr, log = f"{context.name}.net.xml", RAW_XODR.format(name=context.name), "logs/netconvert.log"
+        context.output_path(xodr)
         centre = context.facts.get("extract", {}).get("centre")
         clip = context.section("area").get("bbox") if context.input_kind == "sumo-net" else None
         side = driving_side(context)

@@ -17,6 +17,7 @@ refuses the build with one line naming the file's road and line (the sampling bu
 from __future__ import annotations
 
 import json
+import shutil
 from dataclasses import replace
 
 from tavf_mapkit.pipeline.context import BuildContext
@@ -28,8 +29,8 @@ class OpenDriveStage(Stage):
     inputs = ("xodr",)
     # 2: an OpenDRIVE input becomes the build's NAME.xodr; 3: netconvert's output repaired; 4: @length set to the
     # arc length, [opendrive] repair; 5: connecting roads meet their lanes, one <controller> per id; 6: curves as
-    # arcs ([opendrive] curves)
-    version = "6"
+    # arcs ([opendrive] curves); 7: NAME.xodr is always this stage's (netconvert's file stays in netconvert/)
+    version = "7"
     description = "read and check the OpenDRIVE (counts, bounds, georeference plausibility)"
 
     def options(self, context: BuildContext) -> dict:
@@ -48,13 +49,12 @@ class OpenDriveStage(Stage):
             files["xodr"] = f"{context.name}.xodr"
         else:
             odr, repaired_facts = _repaired_netconvert_output(context)
-            if repaired_facts:  # the rewritten NAME.xodr is this stage's output from now on
-                files["xodr"] = str(context.artifacts["xodr"].relative_to(context.folder))
+            files["xodr"] = f"{context.name}.xodr"
             more_facts["repairs"] = repaired_facts
             if not repair_enabled(context):
                 more_facts["repair"] = False  # --no-repair: "no repairs" does not mean none were needed
         summary = summarise(odr)
-        summary["file"] = files.get("xodr") or context.artifacts["xodr"].name
+        summary["file"] = files["xodr"]
         path = context.output_path("report/opendrive.json")
         path.write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
         geo = summary["georeference"] or {}
@@ -116,8 +116,8 @@ def _repair_steps(context: BuildContext) -> list:
 
 
 def _repaired_netconvert_output(context: BuildContext):
-    """(netconvert's OpenDRIVE with its impossible geometry repaired, NAME.xodr rewritten when anything was;
-    the repairs' facts, ``repair_facts``)."""
+    """(netconvert's OpenDRIVE with its impossible geometry repaired, written as NAME.xodr -- netconvert's file byte
+    for byte when nothing was; the repairs' facts, ``repair_facts``)."""
     from tavf_mapkit.errors import StageError
     from tavf_mapkit.memory import return_freed_memory
     from tavf_mapkit.opendrive.repair import DROPPED_ROAD
@@ -131,16 +131,19 @@ def _repaired_netconvert_output(context: BuildContext):
     for step in _repair_steps(context):
         repaired, made = step(repaired)
         repairs += made
-    if not repairs:
-        return repaired, {}  # every step returned the map it was given
+    raw = context.artifacts["xodr"]  # netconvert's (netconvert/NAME.xodr), which stays as it is
+    xodr = context.output_path(f"{context.name}.xodr")
+    if not repairs:  # every step returned the map it was given
+        if raw.resolve() != xodr.resolve():
+            shutil.copyfile(raw, xodr)
+        return repaired, {}
     return_freed_memory()
     dropped = [repair for repair in repairs if repair.action == DROPPED_ROAD]
-    xodr = context.artifacts["xodr"]
     if len(dropped) > max(MAX_DROPPED_MIN, MAX_DROPPED_SHARE * roads):
         first = dropped[0]
         raise StageError(f"netconvert's OpenDRIVE is broken beyond repair ({len(dropped)} of {roads} "
-                         f"roads would be dropped); the first: {first.detail}", file=xodr.name, line=first.line,
-                         road=first.road)
+                         f"roads would be dropped); the first: {first.detail}",
+                         file=str(raw.relative_to(context.folder)), line=first.line, road=first.road)
     by_action: dict = {}
     for repair in repairs:
         by_action.setdefault(repair.action, []).append(repair)
@@ -153,10 +156,9 @@ def _repaired_netconvert_output(context: BuildContext):
     facts = repair_facts(repairs)
     del repairs, by_action, dropped, made
     # netconvert stamps its output with the time (header @date): without the stamp the repaired file depends on
-    # the input only, so a rebuild -- which reruns netconvert, whose file this no longer is -- reuses the stages
-    # after this one
+    # the input only, so the stages after this one are reused when netconvert had to run again
     repaired = repaired.with_header(replace(repaired.header, date=None))
-    write_opendrive(repaired, xodr)  # a new file renamed over netconvert's (write_opendrive is atomic)
+    write_opendrive(repaired, xodr)
     return repaired, facts
 
 
