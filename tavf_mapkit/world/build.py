@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -99,7 +100,8 @@ def build_collision_world_from_tiles(labelled: Path, out_dir, progress: Progress
     """``build_collision_world`` from labelled tiles (``mesh.tiled``: mesh/labelled of a build), one tile at a
     time: the memory of a tile, not of the map. The world takes their eps, grid, origin and georeference.
     ``progress`` hears of the tiles done. ``fanout``: a ``cluster.Fanout`` that makes the tiles' bodies as Dask
-    tasks (each gets its labelled tiles' bytes and sends back OBJ files; the world comes out the same)."""
+    tasks (each gets its labelled tiles' bytes and sends back OBJ files; the world comes out the same).
+    ``UnreadableTile`` (and no collision/ written) when a labelled tile cannot be read."""
     from tavf_mapkit.mesh.tiled import read_labelled_index
 
     index_json = read_labelled_index(labelled)
@@ -127,11 +129,25 @@ def build_collision_world_from_tiles(labelled: Path, out_dir, progress: Progress
         raise
 
 
+class UnreadableTile(Exception):
+    """A labelled tile that cannot be read (missing, truncated, not a zip of arrays): whoever offered the tiles
+    makes the world another way (the collision stage meshes the map itself)."""
+
+
+#: what reading a damaged labelled tile raises (zip: BadZipFile; arrays: EOFError / ValueError; parts: KeyError ...)
+TILE_READ_ERRORS = (OSError, ValueError, KeyError, TypeError, IndexError, EOFError, zipfile.BadZipFile)
+
+
 def tile_files(grid: TileGrid, index, labelled_tile) -> list[tuple[str, bytes, dict]]:
-    """The body files of one tile from its labelled tile (a path or the file's bytes)."""
+    """The body files of one tile from its labelled tile (a path or the file's bytes); ``UnreadableTile`` when
+    the tile cannot be read. Each tile is read once: checking them all before the build read them twice."""
     from tavf_mapkit.mesh.tiled import read_labelled_tile
 
-    surface, scene = read_labelled_tile(labelled_tile)
+    try:
+        surface, scene = read_labelled_tile(labelled_tile)
+    except TILE_READ_ERRORS as error:
+        where = labelled_tile if not isinstance(labelled_tile, bytes) else f"tile {tuple(index)}"
+        raise UnreadableTile(f"{where}: {error}") from None
     return body_files(np.asarray(grid.origin, dtype=np.float64), tile_bodies(index, surface, scene.solids))
 
 

@@ -30,17 +30,23 @@ class CollisionStage(Stage):
     def run(self, context: BuildContext) -> StageOutput:
         import tempfile
 
-        from tavf_mapkit.world.build import build_collision_world_from_tiles
+        from tavf_mapkit.world.build import UnreadableTile, build_collision_world_from_tiles
 
         options = self.options(context)
         osm_path = context.osm_source()
         meshed = _MeshStageOutput(context)
-        labelled = meshed.labelled(options["eps"], options["tile"], osm_path)
+        # in this process a damaged tile shows while the world is built (each tile read once); Dask tasks would
+        # fail on it far away, so their tiles are read through first
+        labelled = meshed.labelled(options["eps"], options["tile"], osm_path, read=context.fanout is not None)
+        world = None
         if labelled is not None:
             # the mesh stage's labelled tiles: the world is cut from exactly the meshes it exported
-            world = build_collision_world_from_tiles(labelled, context.folder, progress=context.progress,
-                                                     fanout=context.fanout)
-        else:
+            try:
+                world = build_collision_world_from_tiles(labelled, context.folder, progress=context.progress,
+                                                         fanout=context.fanout)
+            except UnreadableTile:
+                labelled = None  # made again below, not trusted
+        if world is None:
             from tavf_mapkit.mesh.tiled import LABELLED, write_tiled_mesh
 
             with tempfile.TemporaryDirectory(prefix=".collision-mesh-", dir=context.folder) as scratch:
@@ -85,9 +91,10 @@ class _MeshStageOutput:
         except (KeyError, TypeError, ValueError):
             return None
 
-    def labelled(self, eps: float, tile: float, osm_path) -> Path | None:
+    def labelled(self, eps: float, tile: float, osm_path, read: bool = True) -> Path | None:
         """mesh/labelled, when it was made at ``eps`` on tiles of ``tile`` metres, with solids, from the same
-        buildings input, and every file it lists is there and readable."""
+        buildings input, and every file it lists is there and readable (``read`` off: there, as files; the
+        caller reads them and makes the world anew if one is unreadable)."""
         import zipfile
 
         import numpy as np
@@ -104,6 +111,10 @@ class _MeshStageOutput:
             if float(index["eps"]) != eps or float(index["tile_size"]) != tile:
                 return None
             for name in index["tiles"]:
+                if not read:
+                    if not (folder / f"{name}.npz").is_file():
+                        return None
+                    continue
                 # a damaged file is made again, not trusted: BadZipFile (zip), EOFError / ValueError (arrays)
                 with np.load(folder / f"{name}.npz", allow_pickle=False) as data:
                     for key in data.files:
