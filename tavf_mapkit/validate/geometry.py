@@ -4,7 +4,6 @@ jumps, zero lengths, implausible numbers. Vectorised over the whole map (Network
 from __future__ import annotations
 
 import itertools
-import math
 
 import numpy as np
 
@@ -87,10 +86,9 @@ def kink(ctx, rule):
       why="Readers locate a geometry by s; inconsistent s or lengths shift or cut the road and its lanes.")
 def lengths(ctx, rule):
     tolerance = rule.tolerance
-    for road in ctx.odr.roads:
+    for road_index in _roads_with_length_problems(ctx.odr.arrays, tolerance):
+        road = ctx.odr.roads[road_index]
         geometries = road.reference_line.geometries
-        if not geometries:
-            continue
         if abs(geometries[0].s) > tolerance:
             yield Hit(f"first geometry starts at s={geometries[0].s:g}, not 0", road=road.id, s=geometries[0].s,
                       line=geometries[0].line)
@@ -103,6 +101,24 @@ def lengths(ctx, rule):
         if abs(end - road.length) > tolerance:
             yield Hit(f"geometries end at s={end:.6g} but the road's @length is {road.length:.6g} "
                       f"({end - road.length:+.4g} m)", road=road.id, line=road.line)
+
+
+def _roads_with_length_problems(arrays, tolerance: float) -> list[int]:
+    """Indices of the roads (in order) that geometry.length reports, found on the map's geometry table at once: the
+    rule's per-road loop, with the same sums, then runs on these roads alone."""
+    table = arrays.geometries
+    if not len(table):
+        return []
+    group, s, length = table.group, table.s, table.length
+    start = np.ones(len(group), dtype=bool)
+    start[1:] = group[1:] != group[:-1]
+    last = np.ones(len(group), dtype=bool)
+    last[:-1] = start[1:]
+    follows = ~start[1:]
+    bad = [group[start & (np.abs(s) > tolerance)],
+           group[1:][follows & (np.abs(s[1:] - (s[:-1] + length[:-1])) > tolerance)],
+           group[last & (np.abs(s + length - arrays.road_length[group]) > tolerance)]]
+    return np.unique(np.concatenate(bad)).tolist()
 
 
 def param_poly3_arc_lengths(table, rows: np.ndarray) -> np.ndarray:
@@ -254,11 +270,10 @@ def zero_length_road(ctx, rule):
       why="Zero-length geometries carry no road, yet their heading may contradict the neighbours; the schema "
           "requires lengths > 0.")
 def zero_length_geometry(ctx, rule):
-    for road in ctx.odr.roads:
-        for geometry in road.reference_line.geometries:
-            if not geometry.length > 0 and math.isfinite(geometry.length):
-                yield Hit(f"geometry at s={geometry.s:g} has length 0", road=road.id, s=geometry.s,
-                          line=geometry.line)
+    table = ctx.odr.arrays.geometries
+    for row in np.flatnonzero(~(table.length > 0) & np.isfinite(table.length)).tolist():
+        road, geometry = _geometry_of_row(ctx.odr, table, row)
+        yield Hit(f"geometry at s={geometry.s:g} has length 0", road=road.id, s=geometry.s, line=geometry.line)
 
 
 @rule("geometry.plausible", ERROR,

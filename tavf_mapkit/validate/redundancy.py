@@ -4,6 +4,9 @@ performance.avoid_redundant_info; the build merges them (tavf_mapkit/opendrive/r
 
 from __future__ import annotations
 
+import numpy as np
+
+from tavf_mapkit.opendrive.geometry import GeometryKind
 from tavf_mapkit.opendrive.repair_redundant import EQUATION_TOLERANCE, redundant_lines, redundant_records
 from tavf_mapkit.validate.finding import WARNING, Hit
 from tavf_mapkit.validate.registry import rule
@@ -17,8 +20,10 @@ from tavf_mapkit.validate.registry import rule
           "is none (ASAM: redundant elements should be avoided).")
 def redundant_record(ctx, rule):
     tolerance = rule.tolerance
-    for road in ctx.odr.roads:
-        geometries = road.reference_line.geometries
+    lines_after_lines = _roads_with_consecutive_lines(ctx.odr.arrays.geometries)
+    for road_index, road in enumerate(ctx.odr.roads):
+        # only a road with a line after a line can have a redundant one: the others' geometries are not made
+        geometries = road.reference_line.geometries if road_index in lines_after_lines else ()
         for k in redundant_lines(geometries, tolerance):
             yield Hit(f"line at s={geometries[k].s:g} continues the line before it (same heading)", road=road.id,
                       s=geometries[k].s, line=geometries[k].line)
@@ -36,3 +41,10 @@ def redundant_record(ctx, rule):
                         s = float(profile.s0[k])
                         yield Hit(f"lane {label} record at s={s:g} repeats the polynomial of the one before it",
                                   road=road.id, lane=lane.id, s=s, line=lane.line)
+
+
+def _roads_with_consecutive_lines(table) -> set[int]:
+    """Indices of the roads in whose geometry table (the map's, road by road) a line follows a line."""
+    line = table.kind == int(GeometryKind.LINE)
+    pair = (table.group[1:] == table.group[:-1]) & line[1:] & line[:-1]
+    return set(np.unique(table.group[1:][pair]).tolist())
