@@ -65,11 +65,14 @@ class PlanIndex:
         point, triangle = self.candidates(points)
         if not len(point):
             return point, triangle
-        p = points[point]
-        distance = (self.normal_x[triangle] * p[:, :1] + self.normal_y[triangle] * p[:, 1:2]
-                    - self.offset[triangle])
-        in_box = np.all((p >= self.box_low[triangle] - tolerance) & (p <= self.box_high[triangle] + tolerance), axis=1)
-        inside = np.all(distance >= -tolerance, axis=1) & in_box
+        # the box first: most candidates of a cell lie outside it, and only the rest need their three edge lines
+        px, py = points[point, 0], points[point, 1]
+        low, high = self.box_low[triangle], self.box_high[triangle]
+        in_box = ((px >= low[:, 0] - tolerance) & (px <= high[:, 0] + tolerance)
+                  & (py >= low[:, 1] - tolerance) & (py <= high[:, 1] + tolerance))
+        point, triangle, px, py = point[in_box], triangle[in_box], px[in_box, None], py[in_box, None]
+        distance = self.normal_x[triangle] * px + self.normal_y[triangle] * py - self.offset[triangle]
+        inside = np.all(distance >= -tolerance, axis=1)
         return point[inside], triangle[inside]
 
     def _edge_lines(self) -> None:
