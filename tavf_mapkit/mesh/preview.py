@@ -51,8 +51,8 @@ class PreviewCanvas:
         draw = self._mask((LAYERS.index(layer), int(code)), material)[1]
         xy = (mesh.vertices[:, :2] - self.low) * self.scale + self.margin
         xy[:, 1] = self.size[1] - xy[:, 1]  # north up
-        for triangle in xy[mesh.faces].tolist():
-            draw.polygon([tuple(p) for p in triangle], fill=255)
+        for triangle in xy[mesh.faces].reshape(-1, 6).tolist():  # x0, y0, x1, y1, x2, y2: no tuples to make
+            draw.polygon(triangle, fill=255)
 
     def _mask(self, key: tuple, material: str):
         from PIL import Image, ImageDraw
