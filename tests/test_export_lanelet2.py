@@ -165,7 +165,7 @@ def check_against_lanelet2(view: Lanelet2View, starts: int = 6) -> dict:
     assert set(ours.keys) <= set(view.by_key), "every lane of our lane graph has a lanelet"
     # (b) the same successors and lane changes; lanelets whose own lane runs inside out carry private bounds,
     # so only their lane changes may be missing
-    mine = set(ours.graph.edges(data="kind"))
+    mine = set(ours.edge_list())
     theirs = view.edges(ours.keys)
     inside_out = view.inside_out()
     assert theirs <= mine, sorted(theirs - mine)[:5]
@@ -174,11 +174,12 @@ def check_against_lanelet2(view: Lanelet2View, starts: int = 6) -> dict:
         sorted(missing)[:5]
     import networkx as nx
 
+    reference = ours.to_networkx()
     keys = sorted(ours.keys)
     chosen = [keys[i] for i in np.linspace(0, len(keys) - 1, min(starts, len(keys))).astype(int)]
     for start in chosen:
         reached = {view.key_of[ll.id] for ll in view.graph.reachableSet(view.by_key[start], 1e12, 0, True)}
-        assert reached == nx.descendants(ours.graph, start) | {start}, start
+        assert reached == nx.descendants(reference, start) | {start}, start
     # (c) centre lines: Lanelet2's vertices lie on our centre, and our (finely sampled) centre on Lanelet2's --
     # but for lanes whose centre itself runs backwards somewhere (inside out: the exporter cuts the loop out)
     import shapely
@@ -197,7 +198,7 @@ def check_against_lanelet2(view: Lanelet2View, starts: int = 6) -> dict:
     runs = np.searchsorted(sampling.pair_lane, np.arange(len(odr.arrays.lane_id) + 1))  # pairs lane by lane
     to_ours, to_theirs = [], []
     for key, ll in view.by_key.items():
-        row = ours._rows.get(key)
+        row = ours.row(key) if key in ours else None
         if row is None:
             continue
         our_line = centre[runs[row]:runs[row + 1]]
@@ -225,7 +226,7 @@ def check_against_lanelet2(view: Lanelet2View, starts: int = 6) -> dict:
     return {"centre_max": float(max(to_ours.max(), to_theirs.max())),
             "centre_p99": float(np.percentile(np.concatenate([to_ours, to_theirs]), 99)),
             "shared_pairs": shared, "edges": len(mine), "missing_edges": len(missing),
-            "folded_centres": len(folded & set(ours._rows.values()))}
+            "folded_centres": len(folded & {ours.row(k) for k in ours.keys})}
 
 
 # -- tests ------------------------------------------------------------------------------------------------------

@@ -55,7 +55,7 @@ def test_sampled_lanes_and_lane_graph_do_not_jump(odr):
     graph = LaneGraph.from_opendrive(odr)
     before, after = LaneKey(0, 0, -1), LaneKey(0, 1, -3)
     assert graph.successors(before) == [after]
-    end, start = np.array(graph.graph.nodes[before]["end"]), np.array(graph.graph.nodes[after]["start"])
+    end, start = np.array(graph.end(before)), np.array(graph.start(after))
     assert np.hypot(*(end - start)) < 1e-9
     points, _ = graph.centerline(before, step=1.0)
     assert np.allclose(points[:, 1], -1.75)

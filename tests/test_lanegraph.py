@@ -63,7 +63,7 @@ def synthetic_map(rule: str = "") -> str:
 
 
 def follow_edges(graph: LaneGraph) -> set[tuple[LaneKey, LaneKey]]:
-    return {(a, b) for a, b, kind in graph.graph.edges(data="kind") if kind == "follow"}
+    return {(a, b) for a, b, kind in graph.edge_list() if kind == "follow"}
 
 
 K = LaneKey
@@ -82,7 +82,7 @@ def test_synthetic_topology_is_exact():
         (K(2, 0, -1), K(3, 0, -1)),                                       # connecting road -> road 4
     }
     # the broken line of section 0 allows changes both ways, the solid one of section 1 none
-    changes = {(a, b, kind) for a, b, kind in graph.graph.edges(data="kind") if kind != "follow"}
+    changes = {(a, b, kind) for a, b, kind in graph.edge_list() if kind != "follow"}
     assert changes == {(K(0, 0, -1), K(0, 0, -2), "right"), (K(0, 0, -2), K(0, 0, -1), "left"),
                        }
     assert graph.neighbours(K(0, 1, -1)) == (None, K(0, 1, -2))    # lane 1 runs the other way
@@ -114,7 +114,7 @@ def test_synthetic_centre_lines_lengths_and_directions():
     np.testing.assert_allclose(points[:, 1], 1.75, atol=1e-9)
     assert s[0] == 100.0 and s[-1] == 50.0
     assert graph.length(K(0, 0, -1)) == pytest.approx(50.0)
-    assert graph.graph.nodes[K(0, 1, 1)]["start"] == pytest.approx((100.0, 1.75))
+    assert graph.start(K(0, 1, 1)) == pytest.approx((100.0, 1.75))
     # road 2 points west: its lane 1 lies south of the x axis and carries eastbound traffic
     points, _ = graph.centerline(K(1, 0, 1))
     assert points[0, 0] < points[-1, 0] and np.allclose(points[:, 1], -1.5)
@@ -190,7 +190,7 @@ def test_real_build_connectivity(fixture, request):
     assert checked > 0.5 * len(follow_edges(graph))
     assert failures == []
     # every lane change joins lanes of one road section that run the same way, side by side
-    for a, b, kind in graph.graph.edges(data="kind"):
+    for a, b, kind in graph.edge_list():
         if kind != "follow":
             assert a[:2] == b[:2] and graph.drives_with_s(a) == graph.drives_with_s(b)
             assert abs(abs(a.lane_id) - abs(b.lane_id)) == 1
@@ -305,7 +305,7 @@ def test_lane_graph_of_a_map_over_the_budget_as_a_whole(tavf_xodr):
     with pytest.raises(InputError, match=r"sampling every 0.001 m would allocate .* budget of 2.5e\+07"):
         LaneTable.build(tight, 0.001)
     graph = LaneGraph.from_opendrive(tight)
-    assert set(graph.keys) == set(reference.keys) and set(graph.graph.edges) == set(reference.graph.edges)
+    assert set(graph.keys) == set(reference.keys) and set(graph.edge_list()) == set(reference.edge_list())
     assert [graph.length(k) for k in graph.keys] == [reference.length(k) for k in graph.keys]
     index = LaneIndex(graph)
     assert len(index.node) == total

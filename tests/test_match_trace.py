@@ -78,7 +78,7 @@ def test_shared_ride_on_the_dlr_build(tavf_dlr_build, shared):
     assert stats["median_m"] <= 3.0 and stats["matched_fraction"] >= 0.70
     assert stats["floor_mean_m"] <= stats["mean_m"]
     for leg in result.route_legs():
-        assert all(graph.graph.has_edge(a, b) for a, b in itertools.pairwise(leg))
+        assert all(graph.has_edge(a, b) for a, b in itertools.pairwise(leg))
     # every matched fix lies on the route, in order
     assert np.all(np.diff(result.route_index[result.matched]) >= 0)
     assert all(result.lane_route[result.route_index[i]] == result.lane(i) for i in np.flatnonzero(result.matched))

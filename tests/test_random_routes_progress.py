@@ -56,7 +56,7 @@ def test_a_lane_change_cycle_is_no_loop_and_a_route_stuck_in_one_raises():
     # -1 -> -2 -> -1, two lane changes; the walk used to alternate between them for ever
     graph, lines = _graph(_straight_road(100.0, right=[_lane(-1), _lane(-2)]))
     a, b = LaneKey(0, 0, -1), LaneKey(0, 0, -2)
-    assert graph.graph.edges[a, b]["kind"] != "follow" and graph.graph.edges[b, a]["kind"] != "follow"
+    assert graph.edge_kind(a, b) != "follow" and graph.edge_kind(b, a) != "follow"
     routes = RandomRoutes(graph, lines)
     assert routes.mode == "restart"  # no closed loop, no lane of the opposite direction to turn into
     items = _items(routes, 200)

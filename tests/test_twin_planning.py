@@ -29,17 +29,17 @@ def test_random_walk_stays_in_a_closed_component_and_never_dead_ends(sample):
     _, graph, lines = sample
     routes = RandomRoutes(graph, lines)
     lanes = routes.lanes
-    sub = graph.graph.subgraph(lanes)
+    sub = graph.to_networkx().subgraph(lanes)
     assert nx.is_strongly_connected(sub)
     walk = list(itertools.islice(routes.walk(np.random.default_rng(5)), 3000))
     assert set(walk) <= lanes
     for a, b in itertools.pairwise(walk):
-        assert graph.graph.has_edge(a, b)
+        assert graph.has_edge(a, b)
     # lane changes happen but never straight back and forth
-    kinds = [graph.graph.edges[a, b]["kind"] for a, b in itertools.pairwise(walk)]
+    kinds = [graph.edge_kind(a, b) for a, b in itertools.pairwise(walk)]
     assert "follow" in kinds and ({"left", "right"} & set(kinds))
     for (a, b), (c, d) in itertools.pairwise(itertools.pairwise(walk)):
-        if graph.graph.edges[a, b]["kind"] != "follow" and graph.graph.edges[c, d]["kind"] != "follow":
+        if graph.edge_kind(a, b) != "follow" and graph.edge_kind(c, d) != "follow":
             assert d != a or len(routes._lateral[c]) == 1
 
 
@@ -70,7 +70,7 @@ def test_waypoints_branch_at_junctions(sample):
 
 def test_lane_change_run_splits_the_section(sample):
     _, graph, lines = sample
-    change = next((a, b) for a, b, kind in sorted(graph.graph.edges(data="kind")) if kind == "left")
+    change = next((a, b) for a, b, kind in sorted(graph.edge_list()) if kind == "left")
     after = graph.successors(change[1])
     route = [change[0], change[1], *after[:1]]
     spans = list(route_spans(lines, graph, route))
@@ -87,12 +87,12 @@ def test_join_anchors_skips_what_only_a_detour_reaches(sample):
     anchors, driven = [], 0.0
     for k, key in enumerate(walk):
         length = lines[key].length
-        if k and graph.graph.edges[walk[k - 1], key]["kind"] == "follow":
+        if k and graph.edge_kind(walk[k - 1], key) == "follow":
             driven += lines[walk[k - 1]].length
         anchors.append(Anchor(key, 5, 0.0, length, driven, driven + length))
-    end = np.asarray(graph.graph.nodes[walk[5]]["end"])
+    end = np.asarray(graph.end(walk[5]))
     stray = max((k for k in graph.keys if k not in walk),
-                key=lambda k: float(np.linalg.norm(np.asarray(graph.graph.nodes[k]["start"]) - end)))
+                key=lambda k: float(np.linalg.norm(np.asarray(graph.start(k)) - end)))
     a = anchors[5]
     anchors.insert(6, Anchor(stray, 1, 1.0, 1.0, a.trace_last + 1.0, a.trace_last + 1.0))
     route, placed = join_anchors(graph, anchors)

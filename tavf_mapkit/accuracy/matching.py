@@ -15,7 +15,6 @@ import itertools
 import math
 from dataclasses import dataclass, field
 
-import networkx as nx
 import numpy as np
 
 from tavf_mapkit.errors import InputError
@@ -127,9 +126,7 @@ class _Routes:
         costs = self.cache.get(node)
         if costs is None:
             key = self.keys[node]
-            lengths = nx.single_source_dijkstra_path_length(self.graph.graph, key,
-                                                            cutoff=self.graph.length(key) + self.reach,
-                                                            weight="weight")
+            lengths = self.graph.distances_from(key, cutoff=self.graph.length(key) + self.reach)
             costs = {self.position[k]: v for k, v in lengths.items()}
             self.cache[node] = costs
         return costs
@@ -306,7 +303,7 @@ def _lane_route(graph: LaneGraph, keys: list[LaneKey], u: np.ndarray, x: np.ndar
         elif key != route[-1]:
             previous = route[-1]
             path = None
-            if graph.graph.has_edge(previous, key):
+            if graph.has_edge(previous, key):
                 path = [previous, key]
             else:
                 try:
@@ -314,7 +311,7 @@ def _lane_route(graph: LaneGraph, keys: list[LaneKey], u: np.ndarray, x: np.ndar
                 except NoRouteError:
                     pass
             if path is not None and len(path) > 2:
-                driven = sum(graph.graph.edges[a, b]["weight"] for a, b in itertools.pairwise(path)) - u[i - 1] + u[i]
+                driven = graph.path_cost(path) - u[i - 1] + u[i]
                 allowed = max(detour_min_m, detour_factor * math.hypot(x[i] - x[i - 1], y[i] - y[i - 1]))
                 if driven > allowed:
                     path = None

@@ -175,8 +175,7 @@ def _checked_shape(lane, file: str) -> np.ndarray:
 
 def load_sumo_network(path: str, frame, step: float = 0.5) -> Network:
     """Lane shapes of a SUMO network (.net.xml[.gz]); net coordinates = projected + netOffset."""
-    import networkx as nx
-
+    from tavf_mapkit.lanegraph.edges import strong_components
     from tavf_mapkit.sumonet import read_net_bytes
     from tavf_mapkit.xmlsafe import iterparse_safe, prepare_xml_bytes
 
@@ -273,24 +272,25 @@ def load_sumo_network(path: str, frame, step: float = 0.5) -> Network:
     # connectivity of the driving lanes: connections plus changes between neighbouring lanes of an edge
     length = {lane_ids[i]: float(np.linalg.norm(np.diff(shapes[i], axis=0), axis=1).sum())
               for i in range(len(shapes)) if types[i] == "driving" and not internal[i]}
-    graph = nx.DiGraph()
-    graph.add_nodes_from(length)
-    graph.add_edges_from((a, b) for a, b in connections if a in length and b in length)
+    ids = list(length)
+    node = {k: i for i, k in enumerate(ids)}
+    pairs = [(node[a], node[b]) for a, b in connections if a in node and b in node]
     for members in by_edge.values():
-        ids = [lane_ids[i] for i in sorted(members, key=lambda i: lane_index[i])]
-        for a, b in itertools.pairwise(ids):
-            graph.add_edge(a, b)
-            graph.add_edge(b, a)
-    total = sum(length.values())
-    biggest = max(nx.strongly_connected_components(graph), key=lambda c: sum(length[k] for k in c), default=())
-    share = sum(length[k] for k in biggest) / total if total else 0.0
-    dead_ends = sum(1 for k in length if not any(b in length and not _same_edge(k, b) for b in graph.successors(k)))
+        ordered = [node[lane_ids[i]] for i in sorted(members, key=lambda i: lane_index[i])]
+        for a, b in itertools.pairwise(ordered):
+            pairs += [(a, b), (b, a)]
+    source, target = (np.array(column, dtype=np.int64) for column in zip(*pairs)) if pairs else \
+        (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+    count, label = strong_components(len(ids), source, target)
+    lane_length = np.array([length[k] for k in ids])
+    total = float(lane_length.sum())
+    share = float(np.bincount(label, weights=lane_length, minlength=count).max()) / total if total else 0.0
+    # a dead end: no way on into another SUMO edge (lane changes within the edge do not count)
+    edge_of = np.array([k.rsplit("_", 1)[0] for k in ids], dtype=object)
+    leaves = source[edge_of[source] != edge_of[target]]
+    dead_ends = len(ids) - len(np.unique(leaves))
     return Network(name, "sumo", lanes, (lon, lat), roads, (road_lon, road_lat), np.column_stack([jx, jy]),
                    np.column_stack([j_lon, j_lat]), float(share), dead_ends)
-
-
-def _same_edge(a: str, b: str) -> bool:
-    return a.rsplit("_", 1)[0] == b.rsplit("_", 1)[0]
 
 
 def _at_fractions(shape: np.ndarray, fractions: np.ndarray) -> np.ndarray:

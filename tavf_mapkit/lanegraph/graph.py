@@ -1,21 +1,21 @@
-"""LaneGraph: a networkx.DiGraph whose nodes are lanes (LaneKey) and whose edges run in driving direction.
+"""LaneGraph: a directed graph whose nodes are lanes (LaneKey) and whose edges run in driving direction.
 
-Edges carry ``kind`` ("follow": drive on into the next lane, "left"/"right": change lanes) and ``weight`` in
+Edges carry a kind ("follow": drive on into the next lane, "left"/"right": change lanes) and a weight in
 metres: a follow edge costs the length of the lane it leaves, a lane change ``lane_change_cost`` (so a route's
-cost is the length driven up to the start of its last lane plus the lane changes). Node attributes:
-``length`` (m, centre line), ``start`` and ``end`` (x, y of the centre line in driving direction), ``road_id``.
+cost is the length driven up to the start of its last lane plus the lane changes). Per lane: ``length`` (m,
+centre line), ``start`` and ``end`` (x, y of the centre line in driving direction), ``road_id``. The edges are
+arrays (``lanegraph.edges``), routing gives exactly the routes networkx gave on the same graph.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable
 from functools import cached_property
 
-import networkx as nx
 import numpy as np
 
 from tavf_mapkit.errors import MapkitError
+from tavf_mapkit.lanegraph.edges import FOLLOW, KIND_NAMES, LEFT, RIGHT, EdgeArrays, euclidean
 from tavf_mapkit.lanegraph.geometry import LaneTable, centre_points, section_s_values
 from tavf_mapkit.lanegraph.keys import LaneKey, drives_with_s, lane_toward_minus_t, lane_toward_plus_t
 from tavf_mapkit.lanegraph.lanechange import lane_change_allowed
@@ -36,15 +36,23 @@ class NoRouteError(MapkitError):
 
 
 class LaneGraph:
-    """Build with :meth:`from_opendrive`; the networkx graph is ``self.graph``."""
+    """Build with :meth:`from_opendrive`. Lanes are numbered in the map's row order (``keys``); their edges
+    are arrays (``edges``, an ``EdgeArrays``): a region's graph is a few MB, not a dict per lane and edge."""
 
-    def __init__(self, odr, graph: nx.DiGraph, lane_rows: dict[LaneKey, int], forward: dict[LaneKey, bool],
+    def __init__(self, odr, keys: list[LaneKey], lane_rows: np.ndarray, forward: np.ndarray, edges: EdgeArrays,
                  table: LaneTable, step: float = 1.0, lane_types: frozenset[str] = frozenset({"driving"})):
         self.odr = odr
-        self.graph = graph
-        self._rows = lane_rows
-        self._forward = forward
+        self._keys = keys
+        self._index = {key: i for i, key in enumerate(keys)}
+        self._row = lane_rows  # the lane's row of odr.arrays
+        self._ahead = forward  # drives with s
+        self.edges = edges
         self._table = table
+        rows = np.asarray(lane_rows, dtype=np.int64)
+        first, last = table.first[rows, :2], table.last[rows, :2]
+        self._length = np.asarray(table.length[rows], dtype=np.float64)
+        self._start = np.where(forward[:, None], first, last)  # centre line's start in driving direction
+        self._end = np.where(forward[:, None], last, first)
         self.step = step  # m between the table's centre-line samples
         self.lane_types = lane_types
 
@@ -59,9 +67,9 @@ class LaneGraph:
         # the index keeps the centre-line samples of the graph's lanes only (a city's sidewalks are as many)
         table = LaneTable.build(odr, step, keep=np.isin(arrays.lane_type, sorted(types)))
         section_first = np.searchsorted(arrays.section_road, np.arange(len(odr.roads)), side="left")
-        graph = nx.DiGraph()
-        rows: dict[LaneKey, int] = {}
-        forward: dict[LaneKey, bool] = {}
+        keys: list[LaneKey] = []
+        rows: list[int] = []
+        ahead: list[bool] = []
         for row in range(len(arrays.lane_id)):
             if arrays.lane_type[row] not in types:
                 continue
@@ -70,75 +78,171 @@ class LaneGraph:
             key = LaneKey(road_index, section - int(section_first[road_index]), int(arrays.lane_id[row]))
             road = odr.roads[road_index]
             lane = road.lane_sections[key.section_index].by_id[key.lane_id]
-            ahead = drives_with_s(road, lane)
-            first, last = table.first[row, :2], table.last[row, :2]
-            start, end = (first, last) if ahead else (last, first)
-            rows[key] = row
-            forward[key] = ahead
-            graph.add_node(key, length=float(table.length[row]), start=(float(start[0]), float(start[1])),
-                           end=(float(end[0]), float(end[1])), road_id=road.id)
-        exits = {(*key, "end" if ahead else "start"): key for key, ahead in forward.items()}
-        entries = {(*key, "start" if ahead else "end"): key for key, ahead in forward.items()}
+            keys.append(key)
+            rows.append(row)
+            ahead.append(drives_with_s(road, lane))
+        index = {key: i for i, key in enumerate(keys)}
+        length = table.length[np.asarray(rows, dtype=np.int64)].astype(np.float64)
+        # edges in the order networkx's graph had them (routing's tie-breaks depend on it): follow edges in
+        # the order of the map's links, then the lane changes lane by lane
+        source: list[int] = []
+        target: list[int] = []
+        kind: list[int] = []
+        exits = {(*key, "end" if forward else "start"): i for i, (key, forward) in enumerate(zip(keys, ahead))}
+        entries = {(*key, "start" if forward else "end"): i for i, (key, forward) in enumerate(zip(keys, ahead))}
         for p, q in lane_end_pairs(odr):
             for a, b in ((p, q), (q, p)):
-                if a in exits and b in entries and exits[a] != entries[b]:
-                    source = exits[a]
-                    graph.add_edge(source, entries[b], kind="follow", weight=graph.nodes[source]["length"])
-        for key, ahead in forward.items():
+                i, j = exits.get(a), entries.get(b)
+                if i is not None and j is not None and i != j:
+                    source.append(i)
+                    target.append(j)
+        del exits, entries
+        weight = length[np.asarray(source, dtype=np.int64)].tolist()  # a follow edge costs the lane it leaves
+        kind = [FOLLOW] * len(source)
+        for i, (key, forward) in enumerate(zip(keys, ahead)):
             road = odr.roads[key.road_index]
             section = road.lane_sections[key.section_index]
             middle = 0.5 * (section.s0 + road.section_end(key.section_index))
             plus, minus = lane_toward_plus_t(key.lane_id), lane_toward_minus_t(key.lane_id)
             # driving with s, the vehicle's left is +t; against s it is -t
-            for kind, neighbour_id in (("left", plus if ahead else minus), ("right", minus if ahead else plus)):
-                neighbour = LaneKey(key.road_index, key.section_index, neighbour_id)
-                if forward.get(neighbour) is ahead and lane_change_allowed(section, key.lane_id, neighbour_id,
-                                                                            middle):
-                    graph.add_edge(key, neighbour, kind=kind, weight=float(lane_change_cost))
-        return cls(odr, graph, rows, forward, table, step, frozenset(types))
+            for code, neighbour_id in ((LEFT, plus if forward else minus), (RIGHT, minus if forward else plus)):
+                j = index.get(LaneKey(key.road_index, key.section_index, neighbour_id))
+                if j is not None and ahead[j] is forward and lane_change_allowed(section, key.lane_id,
+                                                                                  neighbour_id, middle):
+                    source.append(i)
+                    target.append(j)
+                    kind.append(code)
+                    weight.append(float(lane_change_cost))
+        edges = EdgeArrays.from_edges(len(keys), source, target, kind, weight)
+        return cls(odr, keys, np.asarray(rows, dtype=np.int64), np.asarray(ahead, dtype=bool), edges, table, step,
+                   frozenset(types))
 
-    # ------------------------------------------------------------------ queries
+    def to_networkx(self):
+        """The graph as a ``networkx.DiGraph`` (lanes with ``length``, ``start``, ``end``, ``road_id``; edges with
+        ``kind`` and ``weight``), for tools and tests; the twin never needs it."""
+        import networkx as nx
+
+        graph = nx.DiGraph()
+        for key in self._keys:
+            graph.add_node(key, length=self.length(key), start=self.start(key), end=self.end(key),
+                           road_id=self.road_id(key))
+        keys, edges = self._keys, self.edges
+        for e, (i, j) in enumerate(zip(edges.source.tolist(), edges.target.tolist())):
+            graph.add_edge(keys[i], keys[j], kind=KIND_NAMES[edges.kind[e]], weight=float(edges.weight[e]))
+        return graph
+
+    # ------------------------------------------------------------------ lanes
     def __contains__(self, key) -> bool:
-        return key in self._rows
+        return key in self._index
 
     def __len__(self) -> int:
-        return self.graph.number_of_nodes()
+        return len(self._keys)
 
     @property
     def keys(self) -> list[LaneKey]:
-        return list(self._rows)
+        """The lanes in node order (the map's row order)."""
+        return list(self._keys)
+
+    def node(self, key: LaneKey) -> int:
+        """The lane's node number (its position in ``keys``, the rows of ``edges``)."""
+        return self._index[key]
+
+    def key(self, node: int) -> LaneKey:
+        return self._keys[node]
+
+    def row(self, key: LaneKey) -> int:
+        """The lane's row of ``odr.arrays``."""
+        return int(self._row[self._index[key]])
 
     def drives_with_s(self, key: LaneKey) -> bool:
-        return self._forward[key]
+        return bool(self._ahead[self._index[key]])
 
     def length(self, key: LaneKey) -> float:
         """Length of the lane's centre line (m)."""
-        return self.graph.nodes[key]["length"]
+        return float(self._length[self._index[key]])
+
+    def start(self, key: LaneKey) -> tuple[float, float]:
+        """(x, y) where the lane's centre line starts, in driving direction."""
+        x, y = self._start[self._index[key]]
+        return float(x), float(y)
+
+    def end(self, key: LaneKey) -> tuple[float, float]:
+        x, y = self._end[self._index[key]]
+        return float(x), float(y)
 
     def road_id(self, key: LaneKey) -> str:
         return self.odr.roads[key.road_index].id
 
+    # ------------------------------------------------------------------ edges
+    def edge_list(self) -> list[tuple[LaneKey, LaneKey, str]]:
+        """Every edge as (from, to, kind), lane by lane in node order, each lane's edges in the order added."""
+        keys, edges = self._keys, self.edges
+        kinds = [KIND_NAMES[k] for k in edges.kind.tolist()]
+        return [(keys[i], keys[j], kind) for i, j, kind in zip(edges.source.tolist(), edges.target.tolist(), kinds)]
+
+    def out_edges(self, key: LaneKey) -> list[tuple[LaneKey, str, float]]:
+        """(to, kind, weight) of the lane's edges, in the order they were added."""
+        edges = self.edges
+        return [(self._keys[int(edges.target[e])], KIND_NAMES[edges.kind[e]], float(edges.weight[e]))
+                for e in edges.row(self._index[key])]
+
+    def edge_kind(self, a: LaneKey, b: LaneKey) -> str | None:
+        """"follow", "left" or "right" for the edge a -> b; None without one."""
+        i, j = self._index.get(a), self._index.get(b)
+        if i is None or j is None:
+            return None
+        e = self.edges.find(i, j)
+        return None if e < 0 else KIND_NAMES[self.edges.kind[e]]
+
+    def has_edge(self, a: LaneKey, b: LaneKey) -> bool:
+        return self.edge_kind(a, b) is not None
+
+    def edge_weight(self, a: LaneKey, b: LaneKey) -> float:
+        """Cost of the edge a -> b in metres (KeyError without one)."""
+        e = self.edges.find(self._index[a], self._index[b])
+        if e < 0:
+            raise KeyError((a, b))
+        return float(self.edges.weight[e])
+
+    def path_cost(self, path: list[LaneKey]) -> float:
+        """Sum of the edge weights along ``path`` (consecutive lanes joined by edges), in path order."""
+        return sum(self.edge_weight(a, b) for a, b in zip(path, path[1:]))
+
     def successors(self, key: LaneKey) -> list[LaneKey]:
         """Lanes the lane leads into (follow edges only), sorted for determinism."""
-        return sorted(k for k, data in self.graph.adj[key].items() if data["kind"] == "follow")
+        indptr, target, kind, _ = self.edges.lists
+        i = self._index[key]
+        return sorted(self._keys[target[e]] for e in range(indptr[i], indptr[i + 1]) if kind[e] == FOLLOW)
+
+    def lane_changes(self, key: LaneKey) -> list[LaneKey]:
+        """Lanes the lane may change into (left/right edges), in the order added."""
+        indptr, target, kind, _ = self.edges.lists
+        i = self._index[key]
+        return [self._keys[target[e]] for e in range(indptr[i], indptr[i + 1]) if kind[e] != FOLLOW]
 
     def predecessors(self, key: LaneKey) -> list[LaneKey]:
-        return sorted(k for k in self.graph.predecessors(key) if self.graph.edges[k, key]["kind"] == "follow")
+        """Lanes that lead into the lane (follow edges only), sorted."""
+        edges = self.edges
+        indptr, incoming = edges.incoming
+        j = self._index[key]
+        found = incoming[indptr[j]:indptr[j + 1]]
+        found = found[edges.kind[found] == FOLLOW]
+        return sorted(self._keys[int(i)] for i in edges.source[found])
 
     def neighbours(self, key: LaneKey) -> tuple[LaneKey | None, LaneKey | None]:
         """(left, right) same-direction neighbours in driving direction, whether or not a change is allowed."""
-        ahead = self._forward[key]
+        ahead = self.drives_with_s(key)
         plus = LaneKey(key.road_index, key.section_index, lane_toward_plus_t(key.lane_id))
         minus = LaneKey(key.road_index, key.section_index, lane_toward_minus_t(key.lane_id))
         left, right = (plus, minus) if ahead else (minus, plus)
-        same = [k if self._forward.get(k) is ahead else None for k in (left, right)]
+        same = [k if k in self._index and self.drives_with_s(k) is ahead else None for k in (left, right)]
         return same[0], same[1]
 
     def lane_change_allowed(self, key: LaneKey, side: str) -> bool:
         """May a vehicle change from ``key`` to its ``side`` ("left"/"right") neighbour?"""
         left, right = self.neighbours(key)
         target = left if side == "left" else right
-        return target is not None and self.graph.has_edge(key, target)
+        return target is not None and self.has_edge(key, target)
 
     def speed_limit(self, key: LaneKey) -> float | None:
         """m/s from the lane's speed record, else the road type's; None when the map sets none."""
@@ -148,8 +252,8 @@ class LaneGraph:
         """(points (N, 3), road s (N,)) of the lane centre in driving direction, at most ``step`` apart."""
         road = self.odr.roads[key.road_index]
         s = section_s_values(road.lane_sections[key.section_index].s0, road.section_end(key.section_index), step)
-        points = centre_points(self.odr, np.full(len(s), self._rows[key]), s)
-        if not self._forward[key]:
+        points = centre_points(self.odr, np.full(len(s), self.row(key)), s)
+        if not self.drives_with_s(key):
             points, s = points[::-1], s[::-1]
         return points, s
 
@@ -164,45 +268,98 @@ class LaneGraph:
             values.append(section_s_values(road.lane_sections[key.section_index].s0,
                                            road.section_end(key.section_index), step))
         counts = [len(v) for v in values]
-        rows = np.repeat([self._rows[k] for k in keys], counts)
+        rows = np.repeat([self.row(k) for k in keys], counts)
         points = np.split(centre_points(self.odr, rows, np.concatenate(values)), np.cumsum(counts)[:-1])
         found = {}
         for key, p, s in zip(keys, points, values):
-            found[key] = (p, s) if self._forward[key] else (p[::-1], s[::-1])
+            found[key] = (p, s) if self.drives_with_s(key) else (p[::-1], s[::-1])
         return found
 
     # ------------------------------------------------------------------ routing
     def shortest_path(self, a: LaneKey, b: LaneKey) -> list[LaneKey]:
         """Lanes from ``a`` to ``b`` (both included) with the least cost, by A* with a Euclidean heuristic."""
-        if a not in self._rows or b not in self._rows:
-            missing = a if a not in self._rows else b
+        if a not in self._index or b not in self._index:
+            missing = a if a not in self._index else b
             raise NoRouteError(f"lane {tuple(missing)} is not in the lane graph")
-        target = np.asarray(self.graph.nodes[b]["start"])
-        nodes = self.graph.nodes
         # straight-line distance between lane starts never exceeds the driven distance (lane changes cost at
         # least a lane width), so A* stays exact
-        try:
-            return nx.astar_path(self.graph, a, b, heuristic=lambda u, _v: math.dist(nodes[u]["start"], target),
-                                 weight="weight")
-        except nx.NetworkXNoPath:
-            raise NoRouteError(f"no route from lane {tuple(a)} to lane {tuple(b)}") from None
+        goal = self._index[b]
+        path = self.edges.astar(self._index[a], goal, euclidean(self._start_list, goal))
+        if path is None:
+            raise NoRouteError(f"no route from lane {tuple(a)} to lane {tuple(b)}")
+        return [self._keys[i] for i in path]
+
+    @cached_property
+    def _start_list(self) -> list:
+        return self._start.tolist()
+
+    def distances_from(self, key: LaneKey, cutoff: float | None = None) -> dict[LaneKey, float]:
+        """Cost of the cheapest route from ``key`` to every lane it reaches within ``cutoff`` metres (``key``
+        itself: 0), in the order Dijkstra settles them."""
+        dist, _ = self.edges.distances(self._index[key], cutoff)
+        keys = self._keys
+        return {keys[i]: d for i, d in dist.items()}
+
+    def routes_from(self, key: LaneKey, cutoff: float | None = None) -> tuple[dict[LaneKey, float],
+                                                                           dict[LaneKey, list[LaneKey]]]:
+        """(``distances_from``, the cheapest route to each of those lanes, ``key`` and the lane included), as
+        ``networkx.single_source_dijkstra`` gives them."""
+        source = self._index[key]
+        dist, before = self.edges.distances(source, cutoff)
+        keys = self._keys
+        paths: dict[LaneKey, list[LaneKey]] = {key: [key]}
+        node_paths: dict[int, list[int]] = {source: [source]}
+        for i in dist:
+            if i != source:
+                node_paths[i] = node_paths[before[i]] + [i]
+                paths[keys[i]] = [keys[n] for n in node_paths[i]]
+        return {keys[i]: d for i, d in dist.items()}, paths
+
+    def strongly_connected_components(self) -> list[frozenset]:
+        """Every set of lanes from which each lane of the set can reach the others."""
+        count_, labels = self.edges.strong_labels()
+        members: list[list[LaneKey]] = [[] for _ in range(count_)]
+        for key, label in zip(self._keys, labels.tolist()):
+            members[label].append(key)
+        return [frozenset(m) for m in members]
 
     def largest_strongly_connected(self) -> frozenset:
         """The biggest set of lanes from which every other lane of the set can be reached (by lane length)."""
-        components = list(nx.strongly_connected_components(self.graph))
+        components = self.strongly_connected_components()
         if not components:
             return frozenset()
         return frozenset(max(components, key=lambda c: (sum(self.length(k) for k in c), len(c), min(c))))
 
-    def locator(self):
+    def locator(self, near: tuple[np.ndarray, np.ndarray] | None = None, candidates: int = 16,
+                margin: float = 100.0):
         """A ``LaneLocator`` over the graph's lane-centre samples: ``LaneLocator(odr, step, lane_types)`` with
         the graph's step and lane types gives the same, but samples the whole map again at once (on a region
-        more than one allocation may hold)."""
+        more than one allocation may hold).
+
+        ``near=(x, y)``: a locator only for those points (a drive's trajectory), over the samples in their
+        bounding box widened until every point's ``candidates`` nearest samples lie inside it; it locates
+        them as the whole map's locator does (a sample left out is farther from every point than the box's
+        margin, and so than each point's ``candidates``-th nearest kept one). A region's 7 million samples
+        make a tree of some 200 MB and seconds; a drive's neighbourhood, a few thousand."""
         from tavf_mapkit.opendrive.locate import LaneLocator
 
         table = self._table
-        return LaneLocator.from_samples(self.odr, table.sample_row, table.sample_s, table.sample_xy)
+        row, s, xy = table.sample_row, table.sample_s, table.sample_xy
+        if near is not None and len(np.atleast_1d(near[0])):
+            points = np.column_stack([np.atleast_1d(near[0]), np.atleast_1d(near[1])]).astype(float)
+            low, high = points.min(axis=0), points.max(axis=0)
+            while np.all(np.isfinite(points)):
+                inside = np.flatnonzero(np.all((xy >= low - margin) & (xy <= high + margin), axis=1))
+                if len(inside) == len(xy):
+                    break
+                if len(inside) >= candidates:
+                    locator = LaneLocator.from_samples(self.odr, row[inside], s[inside], xy[inside])
+                    distance, _ = locator.tree.query(points, k=candidates)
+                    if float(np.max(distance[:, -1])) < margin:
+                        return locator
+                margin *= 4.0
+        return LaneLocator.from_samples(self.odr, row, s, xy)
 
     @cached_property
     def total_length(self) -> float:
-        return float(sum(self.length(k) for k in self._rows))
+        return float(sum(self._length.tolist()))

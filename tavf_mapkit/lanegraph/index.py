@@ -32,7 +32,7 @@ class LaneIndex:
     def __init__(self, graph):
         table = graph._table
         keys = sorted(graph.keys)
-        row_of = np.array([graph._rows[k] for k in keys], dtype=np.int64)
+        row_of = np.array([graph.row(k) for k in keys], dtype=np.int64)
         node_of_row = np.full(len(table.length), -1, dtype=np.int64)
         node_of_row[row_of] = np.arange(len(keys))
         keep = node_of_row[table.sample_row] >= 0

@@ -116,7 +116,6 @@ def route_spans(lines: LaneLines, graph, route: Iterable[LaneKey | RouteBreak],
     ``LANE_CHANGE_MAX`` metres. The first lane starts ``first_along`` metres in. ``RouteBreak`` items pass
     through; a run of lane changes that comes back to a lane of the run raises ``RouteStalled`` (it would
     split one section between ever more lanes and never reach the next)."""
-    edges = graph.graph
     keys = iter(route)
     pending = next(keys, None)
     index = 0
@@ -128,8 +127,7 @@ def route_spans(lines: LaneLines, graph, route: Iterable[LaneKey | RouteBreak],
             continue
         run = [pending]
         pending = next(keys, None)
-        while isinstance(pending, LaneKey) and pending in edges[run[-1]] \
-                and edges.edges[run[-1], pending]["kind"] != "follow":
+        while isinstance(pending, LaneKey) and graph.edge_kind(run[-1], pending) not in (None, "follow"):
             if pending in run:
                 raise RouteStalled(f"the route changes lanes in a circle on road {graph.road_id(pending)} "
                                    f"(lanes {', '.join(str(k.lane_id) for k in run)}, {pending.lane_id}) "

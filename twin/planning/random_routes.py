@@ -35,11 +35,11 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Iterator
 
-import networkx as nx
 import numpy as np
 
 from tavf_mapkit.errors import InputError
 from tavf_mapkit.lanegraph import LaneGraph, LaneKey
+from tavf_mapkit.lanegraph.edges import strong_components
 from twin.map.lanelines import LaneLines
 from twin.planning.chunks import DEGENERATE_LANE, RESTART, TURNAROUND, LaneCodes, PathChunk, RouteBreak, \
     expand_route
@@ -59,10 +59,7 @@ class RandomRoutes:
         self.transitions = lane_transitions(graph, lines, self.undrivable, max_cut=max_cut)
         follow = self.transitions.follow
         keep = set(follow)  # drivable lanes of DEGENERATE_LANE or more
-        lateral: dict[LaneKey, list[LaneKey]] = {k: [] for k in keep}
-        for a, b, kind in graph.graph.edges(data="kind"):
-            if kind != "follow" and a in keep and b in keep:
-                lateral[a].append(b)
+        lateral = {k: [b for b in graph.lane_changes(k) if b in keep] for k in keep}
         keep = self._without_blocked_ends(keep, follow, lateral)
         follow = {k: [b for b in follow[k] if b in keep] for k in keep}
         lateral = {k: [b for b in lateral[k] if b in keep] for k in keep}
@@ -167,17 +164,20 @@ class RandomRoutes:
         """The longest strongly connected set of lanes (follow, lane-change and the given turnaround edges)
         with a cycle that covers distance: a follow or turnaround edge inside the set (every lane here is at
         least ``DEGENERATE_LANE`` long). Lane-change-only cycles never qualify."""
-        graph = nx.DiGraph()
-        graph.add_nodes_from(sorted(keep))
-        forward = [(a, b) for a in sorted(keep) for b in follow[a] + turnaround.get(a, [])]
-        graph.add_edges_from(forward)
-        graph.add_edges_from((a, b) for a in sorted(keep) for b in lateral[a])
-        components = [frozenset(c) for c in nx.strongly_connected_components(graph)]
-        member = {k: i for i, c in enumerate(components) for k in c}
-        progressing = {member[a] for a, b in forward if member[a] == member[b]}
+        lanes = sorted(keep)
+        node = {k: i for i, k in enumerate(lanes)}
+        forward = [(node[a], node[b]) for a in lanes for b in follow[a] + turnaround.get(a, [])]
+        edges = forward + [(node[a], node[b]) for a in lanes for b in lateral[a]]
+        source, target = (np.array(column, dtype=np.int64) for column in zip(*edges)) if edges else ((), ())
+        _, label = strong_components(len(lanes), source, target)
+        progressing = sorted({int(label[a]) for a, b in forward if label[a] == label[b]})
+        members: dict[int, list[LaneKey]] = {i: [] for i in progressing}
+        for k, i in zip(lanes, label.tolist()):
+            if i in members:
+                members[i].append(k)
         best, best_rank = None, None
-        for i in sorted(progressing):
-            component = components[i]
+        for i in progressing:
+            component = frozenset(members[i])
             rank = (self._length(component), len(component), min(component))
             if best_rank is None or rank > best_rank:
                 best, best_rank = component, rank

@@ -14,7 +14,6 @@ import itertools
 from dataclasses import dataclass
 from pathlib import Path
 
-import networkx as nx
 import numpy as np
 
 from tavf_mapkit.errors import InputError
@@ -53,7 +52,7 @@ def join_anchors(graph: LaneGraph, anchors: list[Anchor], skip_cost_m: float = 2
     fixes_before = np.concatenate([[0], np.cumsum([a.fixes for a in anchors])])
     lengths, paths = [], []
     for key in keys:
-        length, path = nx.single_source_dijkstra(graph.graph, key, cutoff=cutoff_m, weight="weight")
+        length, path = graph.routes_from(key, cutoff=cutoff_m)
         lengths.append(length)
         paths.append(path)
     best = np.full(m, np.inf)

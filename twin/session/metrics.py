@@ -20,7 +20,7 @@ def off_lane_distance(odr, x: np.ndarray, y: np.ndarray, lane_types=("driving",)
     if not len(x):
         return np.zeros(0)
     if graph is not None and graph.step == 1.0 and graph.lane_types == frozenset(lane_types):
-        locator = graph.locator()
+        locator = graph.locator(near=(x, y), candidates=16)  # a drive's neighbourhood, not a region's tree
     else:
         locator = LaneLocator(odr, step=1.0, lane_types=set(lane_types))
     return locator.locate(x, y, candidates=16).distance
