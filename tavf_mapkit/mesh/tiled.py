@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tavf_mapkit.fileutil import write_bytes_atomic, write_text_atomic
+from tavf_mapkit.fileutil import write_text_atomic
 from tavf_mapkit.mesh.export import check_export_options, mesh_summary, write_materials
 from tavf_mapkit.mesh.labelled import KIND_CODE, SURFACE_KINDS, LabelledMesh, npz_bytes
 from tavf_mapkit.mesh.materials import mark_material
@@ -104,6 +104,8 @@ def write_tiled_mesh(odr, folder: str | Path, eps: float, fmt: str = "glb", tile
                      origin=None, progress: Progress | None = None, fanout=None) -> dict:
     """Mesh the map into ``folder``: tiles/ and road marks (unless ``exports`` is off), labelled/ (surface and
     solids per tile, for the collision world), mesh.json and preview.png. Returns mesh.json's content.
+    ``folder`` is one being made, put in place whole by the caller (``mesh.folder.replace_folder``, a build's
+    staging folder, a temporary folder): the tile files are written straight into it.
     ``origin``: the origin to use instead of the middle of the meshes' bounds (e.g. another stage's).
     ``progress`` hears of each pass: roads meshed, junction clusters curbed, building groups placed, tiles
     written. ``fanout``: a ``cluster.FileFanout`` of this map's OpenDRIVE file, to run the batches, the junction
@@ -545,15 +547,18 @@ def _write_tiles(odr, folder: Path, fmt, grid: TileGrid, stores, tally: _Tally, 
 
         products = tile_products(fanout, squares, layers_of, grid, fmt, exports, canvas, tally)
     report(0, len(every))
+    # ``folder`` is being made (a build's or ``mapkit mesh``'s staging folder, the collision stage's scratch), and is
+    # put in place whole: the tiles are written straight in, not each beside itself and renamed (two opens, a
+    # chmod and a rename per file were a tenth of the stage); mesh.json, the folder's marker, still comes last
     for done, product in enumerate(products, 1):
         tally.materials.update(product.materials)
         if product.tile is not None:
             relative, data, entry = product.tile
-            write_bytes_atomic(folder / relative, data)
+            (folder / relative).write_bytes(data)
             tile_entries.append(entry)
         if product.labelled is not None:
             name = tile_name(product.index)
-            write_bytes_atomic(folder / LABELLED / f"{name}.npz", product.labelled)
+            (folder / LABELLED / f"{name}.npz").write_bytes(product.labelled)
             labelled.append(name)
             indices.append([int(product.index[0]), int(product.index[1])])
         report(done, len(every))  # squares that may hold a piece: more than the tiles written
