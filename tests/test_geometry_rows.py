@@ -46,7 +46,7 @@ def _owner(rows: np.ndarray) -> np.ndarray:
 def test_reader_packs_rows_into_shared_arrays(small_packs):
     odr = loads_opendrive(_map_xml(40))
     total = sum(len(road.reference_line) for road in odr.roads)
-    owners = {id(_owner(road.reference_line.rows)) for road in odr.roads}
+    owners = {id(_owner(road.reference_line.narrow)) for road in odr.roads}
     # a pack closes once it holds 7 rows or more (a road adds at most 4): far fewer arrays than roads
     assert len(owners) <= total // 7 + 1 < len(odr.roads)
 
@@ -60,7 +60,7 @@ def test_network_table_is_the_roads_rows_once(small_packs):
     assert np.array_equal(np.column_stack([table.s, table.x, table.y, table.hdg, table.length]), expected[:, :5])
     gathered = _owner(table.s)
     for road, values in zip(odr.roads, before):
-        rows = road.reference_line.rows
+        rows = road.reference_line.narrow
         assert _owner(rows) is gathered  # a view of the table, not a copy beside it
         assert not rows.flags.writeable
         for got, want in zip(road.reference_line.evaluate(s), values):
@@ -73,10 +73,10 @@ def test_network_table_is_the_roads_rows_once(small_packs):
 def test_gather_copies_lines_of_their_own(small_packs):
     lines = [ReferenceLine([Geometry(10.0 * k, float(r), float(k), 0.1 * r, 10.0, GeometryKind.ARC, (0.01 * r,))
                             for k in range(1 + r % 3)]) for r in range(12)] + [ReferenceLine()]
-    expected = np.concatenate([line.rows for line in lines])
+    expected = np.concatenate([line.narrow for line in lines])
     table = gather_rows(lines)
     assert np.array_equal(table, expected)
-    assert all(np.shares_memory(line.rows, table) for line in lines if len(line))
+    assert all(np.shares_memory(line.narrow, table) for line in lines if len(line))
     assert gather_rows(lines) is not table and np.shares_memory(gather_rows(lines), table)  # no second copy
 
 

@@ -13,7 +13,7 @@ import numpy as np
 from tavf_mapkit.opendrive.budget import SampleBudget
 from tavf_mapkit.opendrive.cubic import CubicProfile
 from tavf_mapkit.opendrive.geometry import GeometryTable, group_keys
-from tavf_mapkit.opendrive.refline import gather_rows
+from tavf_mapkit.opendrive.refline import gather_rows, gather_side
 
 
 @dataclass(frozen=True, eq=False)
@@ -118,7 +118,9 @@ class NetworkArrays:
         counts = np.array([len(road.reference_line) for road in roads], dtype=np.int64)
         # one table the roads' reference lines then hold views of (never two copies of a city's 5 million rows)
         rows = gather_rows(road.reference_line for road in roads)
-        table = GeometryTable.from_rows(rows, np.repeat(np.arange(len(roads), dtype=np.int64), counts))
+        side_index, side_params = gather_side([road.reference_line for road in roads], counts)
+        table = GeometryTable.from_rows(rows, np.repeat(np.arange(len(roads), dtype=np.int64), counts),
+                                        side_index, side_params)
         section_road, section_s0, section_end = [], [], []
         lane_section, lane_id, lane_rank, lane_border_flag, lane_type, widths, borders = [], [], [], [], [], [], []
         heights_inner, heights_outer = [], []

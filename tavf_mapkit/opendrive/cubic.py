@@ -6,6 +6,7 @@ One implementation serves every ``a + b*ds + c*ds^2 + d*ds^3`` record of OpenDRI
 
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,9 +28,16 @@ class CubicProfile:
         array = np.asarray(records, dtype=float).reshape(-1, 5)
         if len(array) > 1:
             array = array[np.argsort(array[:, 0], kind="stable")]
+        return CubicProfile._of_array(array, extend_first)
+
+    @staticmethod
+    def _of_array(array: np.ndarray, extend_first: bool) -> "CubicProfile":
         # two arrays of their own, not views of one: a view of a one-record profile keeps the (1, 5) array and
         # its object alive as well (a city has hundreds of thousands of lane widths, mostly of one record)
-        return CubicProfile(array[:, 0].copy(), array[:, 1:].copy(), extend_first)
+        s0, coefficients = array[:, 0].copy(), array[:, 1:].copy()
+        s0.flags.writeable = False
+        coefficients.flags.writeable = False
+        return CubicProfile(s0, coefficients, extend_first)
 
     def __len__(self) -> int:
         return len(self.s0)
@@ -70,6 +78,37 @@ class CubicProfile:
 
 
 EMPTY_PROFILE = CubicProfile(np.zeros(0), np.zeros((0, 4)))
+EMPTY_PROFILE.s0.flags.writeable = False
+EMPTY_PROFILE.coefficients.flags.writeable = False
+
+
+class ProfileInterner:
+    """One CubicProfile for all records that are bit for bit the same: a city's lanes are mostly of a few widths
+    (3.2 m from s=0) and netconvert gives every road the same flat elevation, so hundreds of thousands of
+    profiles are a few thousand. Profiles are immutable (read-only arrays), so sharing them is safe."""
+
+    def __init__(self):
+        self.known: dict[tuple, CubicProfile] = {}
+
+    def profile(self, records: list, extend_first: bool = False) -> CubicProfile:
+        if not records:
+            return EMPTY_PROFILE
+        if len(records) == 1:  # nearly every profile: its key without making an array
+            key = (_RECORD.pack(*records[0]), extend_first)
+            found = self.known.get(key)
+            if found is not None:
+                return found
+        array = np.asarray(records, dtype=float).reshape(-1, 5)
+        if len(array) > 1:
+            array = array[np.argsort(array[:, 0], kind="stable")]
+        key = (array.tobytes(), extend_first)  # the bits (as _RECORD packs them): -0.0 and 0.0 are written apart
+        found = self.known.get(key)
+        if found is None:
+            found = self.known[key] = CubicProfile._of_array(array, extend_first)
+        return found
+
+
+_RECORD = struct.Struct("=5d")  # a record's bits as a (1, 5) float64 array holds them
 
 
 def evaluate_cubic(coefficients: np.ndarray, ds: np.ndarray) -> np.ndarray:

@@ -12,9 +12,9 @@ import numpy as np
 from lxml import etree
 
 from tavf_mapkit.errors import InputError
-from tavf_mapkit.opendrive.cubic import CubicProfile
+from tavf_mapkit.opendrive.cubic import ProfileInterner
 from tavf_mapkit.opendrive.diagnostics import Diagnostic
-from tavf_mapkit.opendrive.geometry import GEOMETRY_COLUMNS, GeometryKind
+from tavf_mapkit.opendrive.geometry import NARROW_COLUMNS, GeometryKind, join_rows
 from tavf_mapkit.opendrive.header import Header, Offset
 from tavf_mapkit.opendrive.junction import Connection, Controller, Junction, JunctionController, LaneLink
 from tavf_mapkit.opendrive.lane import Lane, LaneHeight, LaneRecord, RoadMark, RoadMarkLine
@@ -32,7 +32,9 @@ _GEOMETRY_TAGS = {
 }
 _GEOMETRY_TAG_SET = set(_GEOMETRY_TAGS)
 _CUBIC = ("a", "b", "c", "d")
+_CUBIC_KEYS = list(_CUBIC)
 _LANE_RECORDS = frozenset({"speed", "access", "material", "visibility", "rule"})
+_LANE_GROUPS = ("left", "center", "right")
 _SHARED_NUMBER_LENGTH = 6  # attribute values this short are shared even when they are numbers (Reader.attrib)
 
 
@@ -51,42 +53,52 @@ _PARAM_POLY3_NAMES = ("aU", "bU", "cU", "dU", "aV", "bV", "cV", "dV")
 
 
 def _plain_geometry_row(g) -> tuple | None:
-    """The row of a <geometry> in its common, flawless form -- one <line>, <arc> or <paramPoly3> child, every
-    number present and finite, a positive length -- or None, and the careful path (with its warnings and
-    one-line errors) reads it instead. Curves as arcs give city maps millions of these, so this is the hot path."""
+    """(narrow row, 9 parameters or None) of a <geometry> in its common, flawless form -- one <line>, <arc> or
+    <paramPoly3> child, every number present and finite, a positive length -- or None, and the careful path (with
+    its warnings and one-line errors) reads it instead. Curves as arcs give city maps millions of these, so this
+    is the hot path: a geometry with exactly netconvert's attributes is read in one call (``values``)."""
     if len(g) != 1:
         return None
     shape = g[0]
     tag = shape.tag
-    attrib = g.attrib
     try:
-        s, x, y, length = float(attrib["s"]), float(attrib["x"]), float(attrib["y"]), float(attrib["length"])
-        hdg = float(attrib.get("hdg", 0.0))
-        if tag == "line":
-            params = _NO_PARAMETERS
-            kind = _LINE
-        elif tag == "arc":
-            params = (float(shape.attrib["curvature"]),) + _NO_PARAMETERS[1:]
-            kind = _ARC
+        if g.keys() == _GEOMETRY_KEYS:
+            s, x, y, hdg, length = map(float, g.values())
+        else:
+            attrib = g.attrib
+            s, x, y, length = float(attrib["s"]), float(attrib["x"]), float(attrib["y"]), float(attrib["length"])
+            hdg = float(attrib.get("hdg", 0.0))
+        if tag == "arc":
+            side = None
+            if shape.keys() == _CURVATURE_KEYS:
+                row = (s, x, y, hdg, length, _ARC, float(shape.values()[0]))
+            else:
+                row = (s, x, y, hdg, length, _ARC, float(shape.attrib["curvature"]))
+            total = s + x + y + hdg + length + row[6]
+        elif tag == "line":
+            side = None
+            row = (s, x, y, hdg, length, _LINE, 0.0)
+            total = s + x + y + hdg + length
         elif tag == "paramPoly3":
             p_range = shape.get("pRange", "normalized")
             if p_range not in ("normalized", "arcLength"):
                 return None
             shape_attrib = shape.attrib
-            params = tuple(float(shape_attrib.get(name, 0.0)) for name in _PARAM_POLY3_NAMES) + (
+            side = tuple(float(shape_attrib.get(name, 0.0)) for name in _PARAM_POLY3_NAMES) + (
                 1.0 if p_range == "normalized" else 0.0,)
-            kind = _PARAM_POLY3
+            row = (s, x, y, hdg, length, _PARAM_POLY3, side[0])
+            total = s + x + y + hdg + length + sum(side)
         else:
             return None
     except (KeyError, ValueError):
         return None
-    total = s + x + y + hdg + length + sum(params)
     if total - total != 0.0 or not length > 0.0:  # NaN or infinity somewhere, or a length to warn about
         return None
-    return (s, x, y, hdg, length, kind) + params
+    return row, side
 
 
-_NO_PARAMETERS = (0.0,) * 9
+_GEOMETRY_KEYS = ["s", "x", "y", "hdg", "length"]
+_CURVATURE_KEYS = ["curvature"]
 _LINE, _ARC, _PARAM_POLY3 = int(GeometryKind.LINE), int(GeometryKind.ARC), int(GeometryKind.PARAM_POLY3)
 
 
@@ -118,6 +130,10 @@ class _Reader:
         self.strings: dict[str, str] = {}
         self.packer = RowPacker()  # the reference lines' rows in shared arrays, not one small array per road
         self.attribs: dict[tuple, dict] = {}  # shared_attrib
+        self.raw_attribs: dict[tuple, dict] = {}  # shared_attrib by the element's own (name, value) pairs
+        self.profiles = ProfileInterner()  # identical cubic profiles shared (lane widths, flat elevations)
+        self.marks: dict[tuple, RoadMark] = {}  # identical plain road marks shared (road_mark)
+        self.records: dict[tuple, LaneRecord] = {}  # identical plain lane records shared (lane_record)
 
     # -- helpers ---------------------------------------------------------------------------------------------
     def word(self, element, name: str, default: str | None = None) -> str | None:
@@ -143,8 +159,12 @@ class _Reader:
         """``attrib``, one dict for every element with the same attributes (a city's lanes, road marks and lane
         records repeat a few: {id: -1, type: driving, level: true}). The model's attribute dicts are never
         changed in place (a repair copies one to change it), so sharing them is safe."""
-        out = self.attrib(element)
-        return self.attribs.setdefault(tuple(out.items()), out)
+        raw = tuple(element.items())
+        out = self.raw_attribs.get(raw)
+        if out is None:
+            out = self.attrib(element)
+            out = self.raw_attribs[raw] = self.attribs.setdefault(tuple(out.items()), out)
+        return out
 
     def line(self, element) -> int | None:
         return element.sourceline + self.source.line_offset if element.sourceline else None
@@ -188,17 +208,27 @@ class _Reader:
         return int(value)
 
     def cubic(self, element, s_name: str = "s", base: float = 0.0) -> tuple[float, ...]:
+        keys = element.keys()
+        if len(keys) == 5 and keys[0] == s_name and keys[1:] == _CUBIC_KEYS:  # as netconvert writes them
+            try:
+                s, a, b, c, d = map(float, element.values())
+            except ValueError:
+                pass  # the careful path names the attribute
+            else:
+                total = s + a + b + c + d
+                if total - total == 0.0:  # all finite
+                    return base + s, a, b, c, d
         number = self.number
         return (base + number(element, s_name, 0.0), number(element, "a", 0.0), number(element, "b", 0.0),
                 number(element, "c", 0.0), number(element, "d", 0.0))
 
     @staticmethod
     def children(element, tag: str):
-        return element.findall(tag)
+        return list(element.iterchildren(tag))  # findall's path machinery costs ~10x on a map's many small lists
 
     @staticmethod
     def child(element, tag: str):
-        return element.find(tag)
+        return next(element.iterchildren(tag), None)
 
     @staticmethod
     def unknown(element, known: set[str]) -> tuple[bytes, ...]:
@@ -289,47 +319,56 @@ class _Reader:
         length = self.number(element, "length", required=True)
         if length < 0:
             raise self.error(f"@length={element.get('length')} is negative", element)
-        link = self.child(element, "link")
+        # one pass over the road's children, not a search per kind of child (roads are many, children few)
+        first, types_elements = {}, []
+        for child in element:
+            tag = child.tag
+            if tag == "type":
+                types_elements.append(child)
+            elif tag not in first:
+                first[tag] = child
+        child = first.get
+        link = child("link")
         predecessor = successor = None
         extra = {}
         if link is not None:
             predecessor = self.road_link(self.child(link, "predecessor"))
             successor = self.road_link(self.child(link, "successor"))
             extra["link"] = self.unknown(link, {"predecessor", "successor"})
-        types = tuple(self.road_type(t) for t in self.children(element, "type"))
-        plan_view = self.child(element, "planView")
+        types = tuple(self.road_type(t) for t in types_elements)
+        plan_view = child("planView")
         reference_line = self.plan_view(plan_view) if plan_view is not None else ReferenceLine()
         self.packer.add(reference_line)
         if plan_view is None:
             self.warn("road has no <planView>", element)
         elevation = superelevation = lane_offset = None
         shape = ()
-        profile = self.child(element, "elevationProfile")
+        profile = child("elevationProfile")
         if profile is not None:
-            elevation = CubicProfile.from_records([self.cubic(e) for e in self.children(profile, "elevation")])
+            elevation = self.profiles.profile([self.cubic(e) for e in self.children(profile, "elevation")])
             extra["elevationProfile"] = self.unknown(profile, {"elevation"})
-        lateral = self.child(element, "lateralProfile")
+        lateral = child("lateralProfile")
         if lateral is not None:
-            superelevation = CubicProfile.from_records(
+            superelevation = self.profiles.profile(
                 [self.cubic(e) for e in self.children(lateral, "superelevation")])
             shape = tuple(ShapeRecord(self.number(e, "s", 0.0), self.number(e, "t", 0.0),
                                       tuple(self.number(e, k, 0.0) for k in _CUBIC))
                           for e in self.children(lateral, "shape"))
             extra["lateralProfile"] = self.unknown(lateral, {"superelevation", "shape"})
-        lanes = self.child(element, "lanes")
+        lanes = child("lanes")
         sections: tuple[LaneSection, ...] = ()
         if lanes is not None:
-            lane_offset = CubicProfile.from_records([self.cubic(e) for e in self.children(lanes, "laneOffset")])
+            lane_offset = self.profiles.profile([self.cubic(e) for e in self.children(lanes, "laneOffset")])
             sections = self.lane_sections(lanes, length)
             extra["lanes"] = self.unknown(lanes, {"laneOffset", "laneSection"})
         if not sections:
             self.warn("road has no lane section", element)
-        objects_element = self.child(element, "objects")
+        objects_element = child("objects")
         objects = ()
         if objects_element is not None:
             objects = tuple(self.road_object(o) for o in self.children(objects_element, "object"))
             extra["objects"] = self.unknown(objects_element, {"object"})
-        signals_element = self.child(element, "signals")
+        signals_element = child("signals")
         signals, references = (), ()
         if signals_element is not None:
             signals = tuple(self.signal(s) for s in self.children(signals_element, "signal"))
@@ -371,12 +410,36 @@ class _Reader:
                         self.shared_attrib(speed) if speed is not None else None)
 
     def plan_view(self, element) -> ReferenceLine:
-        # rows, not Geometry objects: a map's curves as arcs are millions of records (see refline.py)
-        rows, lines, extra_xml = [], [], {}
+        # narrow rows, not Geometry objects: a map's curves as arcs are millions of records (see refline.py)
+        rows, lines, side_index, side_params, extra_xml = [], [], [], [], {}
         line_offset = self.source.line_offset
-        for g in self.children(element, "geometry"):
-            row = _plain_geometry_row(g)
-            if row is not None:
+        for g in element.iterchildren("geometry"):
+            if g.keys() == _GEOMETRY_KEYS and len(g) == 1:
+                # the hot path, inline: a line or an arc with netconvert's attributes, every number finite
+                shape = g[0]
+                tag = shape.tag
+                try:
+                    s, x, y, hdg, length = map(float, g.values())
+                    if tag == "arc" and shape.keys() == _CURVATURE_KEYS:
+                        curvature = float(shape.values()[0])
+                    elif tag == "line" and not shape.keys():
+                        curvature = 0.0
+                    else:
+                        curvature = None
+                except ValueError:
+                    curvature = None
+                if curvature is not None:
+                    total = s + x + y + hdg + length + curvature
+                    if total - total == 0.0 and length > 0.0:
+                        rows.append((s, x, y, hdg, length, _ARC if tag == "arc" else _LINE, curvature))
+                        lines.append(g.sourceline + line_offset if g.sourceline else -1)
+                        continue
+            plain = _plain_geometry_row(g)
+            if plain is not None:
+                row, params = plain
+                if params is not None:
+                    side_index.append(len(rows))
+                    side_params.append(params)
                 rows.append(row)
                 lines.append(g.sourceline + line_offset if g.sourceline else -1)
                 continue
@@ -418,26 +481,39 @@ class _Reader:
             unknown = self.unknown(g, _GEOMETRY_TAG_SET)
             if unknown:
                 extra_xml[len(rows)] = unknown
-            rows.append((s, x, y, hdg, length, int(kind)) + params + (0.0,) * (9 - len(params)))
+            if kind >= GeometryKind.SPIRAL:  # more parameters than the narrow row holds (geometry.NARROW_COLUMNS)
+                side_index.append(len(rows))
+                side_params.append(params + (0.0,) * (9 - len(params)))
+            rows.append((s, x, y, hdg, length, int(kind), params[0] if params else 0.0))
             line = self.line(g)
             lines.append(-1 if line is None else line)
-        order = sorted(range(len(rows)), key=lambda k: rows[k][0])  # stable, like the records' own order
-        if order != list(range(len(rows))):
-            rows, lines = [rows[k] for k in order], [lines[k] for k in order]
-            extra_xml = {order.index(k): v for k, v in extra_xml.items()}
-        return ReferenceLine.from_rows(np.array(rows, dtype=float).reshape(-1, GEOMETRY_COLUMNS),
-                                       np.array(lines, dtype=np.int32), extra_xml)
+        narrow = np.array(rows, dtype=float).reshape(-1, NARROW_COLUMNS)
+        lines = np.array(lines, dtype=np.int32)
+        if len(rows) > 1 and any(rows[k][0] > rows[k + 1][0] for k in range(len(rows) - 1)):
+            # out of order in the file: sorted by s, stable like the records' own order (a rare, careful path)
+            wide = join_rows(narrow, np.array(side_index, dtype=np.int64), np.array(side_params).reshape(-1, 9))
+            order = np.argsort(narrow[:, 0], kind="stable")
+            extra_xml = {int(np.flatnonzero(order == k)[0]): v for k, v in extra_xml.items()}
+            return ReferenceLine.from_rows(wide[order], lines[order], extra_xml)
+        if not side_index:
+            return ReferenceLine.from_narrow(narrow, None, None, lines, extra_xml)
+        return ReferenceLine.from_narrow(narrow, np.array(side_index, dtype=np.int64),
+                                         np.array(side_params, dtype=float).reshape(-1, 9), lines, extra_xml)
 
     def lane_sections(self, lanes_element, road_length: float) -> tuple[LaneSection, ...]:
         sections = []
         for element in self.children(lanes_element, "laneSection"):
             s0 = self.number(element, "s", 0.0)
             lanes = []
-            for group in ("left", "center", "right"):
-                group_element = self.child(element, group)
+            groups = {}
+            for child in element:  # one pass; the first <left>, <center> and <right> count, in this order
+                if child.tag in _LANE_GROUPS and child.tag not in groups:
+                    groups[child.tag] = child
+            for group in _LANE_GROUPS:
+                group_element = groups.get(group)
                 if group_element is None:
                     continue
-                for lane_element in self.children(group_element, "lane"):
+                for lane_element in group_element.iterchildren("lane"):
                     lanes.append(self.lane(lane_element, s0))
             sections.append(LaneSection(
                 s0, tuple(lanes), element.get("singleSide"), self.line(element), self.attrib(element),
@@ -451,7 +527,13 @@ class _Reader:
         return tuple(sections)
 
     def lane(self, element, section_s0: float) -> Lane:
-        lane_id = self.integer(element, "id", required=True)
+        raw_id = element.get("id")
+        try:  # a short integer as written ("-1"): what the careful path gives too, without it
+            lane_id = int(raw_id) if raw_id is not None and len(raw_id) <= 6 else None
+        except ValueError:
+            lane_id = None
+        if lane_id is None:
+            lane_id = self.integer(element, "id", required=True)
         predecessor = successor = None
         widths, borders, heights, marks, records, unknown = [], [], [], [], [], []
         # one pass over the children: lanes are the most numerous element of a map
@@ -472,20 +554,43 @@ class _Reader:
                 heights.append(LaneHeight(section_s0 + self.number(child, "sOffset", 0.0),
                                           self.number(child, "inner", 0.0), self.number(child, "outer", 0.0)))
             elif tag in _LANE_RECORDS:
-                records.append(LaneRecord(tag, section_s0 + self.number(child, "sOffset", 0.0),
-                                          self.shared_attrib(child),
-                                          tuple(_verbatim(c) for c in child if isinstance(c.tag, str))))
+                records.append(self.lane_record(child, tag, section_s0))
             elif isinstance(tag, str):
                 unknown.append(_verbatim(child))
         level = element.get("level", "false").lower() in ("true", "1")
         return Lane(
             lane_id, self.word(element, "type", "none"), level, predecessor, successor,
-            CubicProfile.from_records(widths, extend_first=True), CubicProfile.from_records(borders, extend_first=True),
+            self.profiles.profile(widths, extend_first=True), self.profiles.profile(borders, extend_first=True),
             tuple(heights), tuple(marks), tuple(records), self.line(element), self.shared_attrib(element),
             tuple(unknown),
         )
 
+    def lane_record(self, element, tag: str, section_s0: float) -> LaneRecord:
+        """A speed, access, ... record; one for all that are the same (a city's lanes share a few speeds)."""
+        if len(element):
+            return self.read_lane_record(element, tag, section_s0)
+        key = (tag, section_s0.hex(), tuple(element.items()))
+        record = self.records.get(key)
+        if record is None:
+            record = self.records[key] = self.read_lane_record(element, tag, section_s0)
+        return record
+
+    def read_lane_record(self, element, tag: str, section_s0: float) -> LaneRecord:
+        return LaneRecord(tag, section_s0 + self.number(element, "sOffset", 0.0), self.shared_attrib(element),
+                          tuple(_verbatim(c) for c in element if isinstance(c.tag, str)))
+
     def road_mark(self, element, section_s0: float) -> RoadMark:
+        if len(element):
+            return self.read_road_mark(element, section_s0)
+        # a mark without children is a function of its attributes and the section's start: a city's marks are a
+        # few (solid, broken, 0.13 m, from the section's start), read once each and shared
+        key = (section_s0.hex(), tuple(element.items()))
+        mark = self.marks.get(key)
+        if mark is None:
+            mark = self.marks[key] = self.read_road_mark(element, section_s0)
+        return mark
+
+    def read_road_mark(self, element, section_s0: float) -> RoadMark:
         type_element = self.child(element, "type")
         explicit_element = self.child(element, "explicit")
         lines, explicit, type_name, type_width = (), False, None, None

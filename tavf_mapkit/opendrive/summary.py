@@ -14,7 +14,7 @@ def summarise(odr) -> dict:
     lanes_by_type: Counter = Counter()
     geometry_types: Counter = Counter()
     for road in odr.roads:
-        geometry_types.update(ELEMENT_NAMES[GeometryKind(kind)] for kind in road.reference_line.rows[:, 5].tolist())
+        geometry_types.update(ELEMENT_NAMES[GeometryKind(kind)] for kind in road.reference_line.kinds.tolist())
         for section in road.lane_sections:
             for lane in section.side_lanes:
                 lanes_by_type[lane.type] += 1
