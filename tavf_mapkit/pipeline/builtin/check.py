@@ -102,6 +102,7 @@ class CheckStage(Stage):
         """(validation summary, the loaded map, the findings); a StageError when the file cannot be read as
         OpenDRIVE."""
         from tavf_mapkit.opendrive import load_opendrive
+        from tavf_mapkit.pipeline.builtin.stage_map import take_kept_map
 
         try:
             from tavf_mapkit.validate.runner import validate_and_load
@@ -112,7 +113,8 @@ class CheckStage(Stage):
             except InputError as unreadable:
                 raise StageError(f"the OpenDRIVE is unreadable: {unreadable}") from None
         try:
-            report, odr, unreadable = validate_and_load(str(xodr))
+            # the mesh stage's map when it kept it (a small map, the same file): not loaded a second time
+            report, odr, unreadable = validate_and_load(str(xodr), odr=take_kept_map(context))
         except InputError as error:  # not even well-formed XML
             raise StageError(f"the OpenDRIVE is unreadable: {error}") from None
         if unreadable is not None:

@@ -33,6 +33,7 @@ class MeshStage(Stage):
 
     def run(self, context: BuildContext) -> StageOutput:
         from tavf_mapkit.mesh.folder import write_mesh_folder
+        from tavf_mapkit.pipeline.builtin.stage_map import stage_map
 
         options = self.options(context)
         # on a Dask cluster the tasks get the map's bytes (no shared filesystem); every worker starts loading it
@@ -43,7 +44,7 @@ class MeshStage(Stage):
 
             fanout = context.fanout.with_file(context.artifacts["xodr"])
             preload(fanout)
-        odr = context.opendrive()
+        odr = stage_map(context)  # kept for the check stage when small (stage_map.py)
         osm_path = context.osm_source()
         folder = context.output_path("mesh/mesh.json").parent
         summary = write_mesh_folder(odr, folder, options["eps"], options["format"], options["tile"],
