@@ -134,6 +134,7 @@ class _Reader:
         self.profiles = ProfileInterner()  # identical cubic profiles shared (lane widths, flat elevations)
         self.marks: dict[tuple, RoadMark] = {}  # identical plain road marks shared (road_mark)
         self.records: dict[tuple, LaneRecord] = {}  # identical plain lane records shared (lane_record)
+        self.tuples: dict[tuple, tuple] = {}  # shared_tuple
 
     # -- helpers ---------------------------------------------------------------------------------------------
     def word(self, element, name: str, default: str | None = None) -> str | None:
@@ -398,7 +399,7 @@ class _Reader:
         if element_id is None:
             raise self.error("link without @elementId", element)
         return RoadLink(self.word(element, "elementType", "road"), element_id, self.word(element, "contactPoint"),
-                        self.attrib(element))
+                        self.shared_attrib(element))
 
     def road_type(self, element) -> RoadType:
         speed = self.child(element, "speed")
@@ -411,6 +412,7 @@ class _Reader:
 
     def plan_view(self, element) -> ReferenceLine:
         # narrow rows, not Geometry objects: a map's curves as arcs are millions of records (see refline.py)
+        # rows: the narrow rows' values one after another (one array made of them at the end); lines: one per row
         rows, lines, side_index, side_params, extra_xml = [], [], [], [], {}
         line_offset = self.source.line_offset
         for g in element.iterchildren("geometry"):
@@ -431,16 +433,16 @@ class _Reader:
                 if curvature is not None:
                     total = s + x + y + hdg + length + curvature
                     if total - total == 0.0 and length > 0.0:
-                        rows.append((s, x, y, hdg, length, _ARC if tag == "arc" else _LINE, curvature))
+                        rows += (s, x, y, hdg, length, _ARC if tag == "arc" else _LINE, curvature)
                         lines.append(g.sourceline + line_offset if g.sourceline else -1)
                         continue
             plain = _plain_geometry_row(g)
             if plain is not None:
                 row, params = plain
                 if params is not None:
-                    side_index.append(len(rows))
+                    side_index.append(len(lines))
                     side_params.append(params)
-                rows.append(row)
+                rows += row
                 lines.append(g.sourceline + line_offset if g.sourceline else -1)
                 continue
             s = self.number(g, "s", required=True)
@@ -480,16 +482,16 @@ class _Reader:
                 self.warn(f"zero-length <{tag}> geometry at s={s:g}; tolerated", g)
             unknown = self.unknown(g, _GEOMETRY_TAG_SET)
             if unknown:
-                extra_xml[len(rows)] = unknown
+                extra_xml[len(lines)] = unknown
             if kind >= GeometryKind.SPIRAL:  # more parameters than the narrow row holds (geometry.NARROW_COLUMNS)
-                side_index.append(len(rows))
+                side_index.append(len(lines))
                 side_params.append(params + (0.0,) * (9 - len(params)))
-            rows.append((s, x, y, hdg, length, int(kind), params[0] if params else 0.0))
+            rows += (s, x, y, hdg, length, int(kind), params[0] if params else 0.0)
             line = self.line(g)
             lines.append(-1 if line is None else line)
-        narrow = np.array(rows, dtype=float).reshape(-1, NARROW_COLUMNS)
+        narrow = np.fromiter(rows, dtype=float, count=len(rows)).reshape(-1, NARROW_COLUMNS)
         lines = np.array(lines, dtype=np.int32)
-        if len(rows) > 1 and any(rows[k][0] > rows[k + 1][0] for k in range(len(rows) - 1)):
+        if len(narrow) > 1 and np.any(narrow[1:, 0] < narrow[:-1, 0]):
             # out of order in the file: sorted by s, stable like the records' own order (a rare, careful path)
             wide = join_rows(narrow, np.array(side_index, dtype=np.int64), np.array(side_params).reshape(-1, 9))
             order = np.argsort(narrow[:, 0], kind="stable")
@@ -516,7 +518,7 @@ class _Reader:
                 for lane_element in group_element.iterchildren("lane"):
                     lanes.append(self.lane(lane_element, s0))
             sections.append(LaneSection(
-                s0, tuple(lanes), element.get("singleSide"), self.line(element), self.attrib(element),
+                s0, tuple(lanes), element.get("singleSide"), self.line(element), self.shared_attrib(element),
                 self.unknown(element, {"left", "center", "right"})))
         sections.sort(key=lambda section: section.s0)
         # zero-length lane sections are legal but carry no surface: keep them, evaluation skips them
@@ -527,13 +529,7 @@ class _Reader:
         return tuple(sections)
 
     def lane(self, element, section_s0: float) -> Lane:
-        raw_id = element.get("id")
-        try:  # a short integer as written ("-1"): what the careful path gives too, without it
-            lane_id = int(raw_id) if raw_id is not None and len(raw_id) <= 6 else None
-        except ValueError:
-            lane_id = None
-        if lane_id is None:
-            lane_id = self.integer(element, "id", required=True)
+        lane_id = self.lane_id(element)
         predecessor = successor = None
         widths, borders, heights, marks, records, unknown = [], [], [], [], [], []
         # one pass over the children: lanes are the most numerous element of a map
@@ -544,10 +540,10 @@ class _Reader:
             elif tag == "roadMark":
                 marks.append(self.road_mark(child, section_s0))
             elif tag == "link":
-                p = child.find("predecessor")
-                n = child.find("successor")
-                predecessor = self.integer(p, "id", required=True) if p is not None else None
-                successor = self.integer(n, "id", required=True) if n is not None else None
+                p = next(child.iterchildren("predecessor"), None)
+                n = next(child.iterchildren("successor"), None)
+                predecessor = self.lane_id(p) if p is not None else None
+                successor = self.lane_id(n) if n is not None else None
             elif tag == "border":
                 borders.append(self.cubic(child, "sOffset", section_s0))
             elif tag == "height":
@@ -561,9 +557,31 @@ class _Reader:
         return Lane(
             lane_id, self.word(element, "type", "none"), level, predecessor, successor,
             self.profiles.profile(widths, extend_first=True), self.profiles.profile(borders, extend_first=True),
-            tuple(heights), tuple(marks), tuple(records), self.line(element), self.shared_attrib(element),
+            tuple(heights), self.shared_tuple(marks), self.shared_tuple(records), self.line(element), self.shared_attrib(element),
             tuple(unknown),
         )
+
+    def shared_tuple(self, items: list) -> tuple:
+        """A tuple of the items, one for every list of the same objects: a city's lanes mostly have the same
+        (shared) road mark and speed record, and a tuple each would cost more than the objects they share."""
+        if not items:
+            return ()
+        key = tuple(map(id, items))  # the items are kept alive by the tuple stored: their ids stay theirs
+        found = self.tuples.get(key)
+        if found is None:
+            found = self.tuples[key] = tuple(items)
+        return found
+
+    def lane_id(self, element) -> int:
+        """@id of a lane or a lane link: a short integer as written ("-1") directly -- what ``integer`` gives for
+        it too -- anything else through ``integer`` (its checks and one-line errors)."""
+        raw = element.get("id")
+        if raw is not None and len(raw) <= 6:
+            try:
+                return int(raw)
+            except ValueError:
+                pass
+        return self.integer(element, "id", required=True)
 
     def lane_record(self, element, tag: str, section_s0: float) -> LaneRecord:
         """A speed, access, ... record; one for all that are the same (a city's lanes share a few speeds)."""
