@@ -57,9 +57,8 @@ class LabelledMesh:
 
     def select(self, face_mask: np.ndarray) -> LabelledMesh:
         """The faces where ``face_mask`` is true, with unused vertices dropped."""
-        faces = self.faces[face_mask]
-        used, inverse = np.unique(faces, return_inverse=True)
-        return LabelledMesh(self.vertices[used], inverse.reshape(-1, 3).astype(np.int64),
+        used, faces = used_vertices(self.faces[face_mask], len(self.vertices))
+        return LabelledMesh(self.vertices[used], faces,
                             self.road_index[face_mask], self.lane_id[face_mask], self.kind[face_mask],
                             None if self.uv is None else self.uv[used])
 
@@ -97,6 +96,19 @@ class LabelledMesh:
     def load_npz(cls, path: str | Path) -> LabelledMesh:
         with np.load(path, allow_pickle=False) as data:
             return cls(*(data.get(name, None) for name in cls._ARRAYS))
+
+
+def used_vertices(faces: np.ndarray, vertex_count: int) -> tuple[np.ndarray, np.ndarray]:
+    """(the vertices ``faces`` use, ascending; the faces renumbered to them, int64): ``np.unique(faces,
+    return_inverse=True)``, found with a mask over the ``vertex_count`` vertices instead of sorting the corners
+    (selections of tiles and units from a merged mesh are most of the mesh stage's calls)."""
+    faces = np.asarray(faces)
+    if not faces.size:
+        return np.zeros(0, dtype=np.int64), np.zeros((0, 3), dtype=np.int64)
+    mask = np.zeros(vertex_count, dtype=bool)
+    mask[faces.ravel()] = True
+    new_index = np.cumsum(mask, dtype=np.int64) - 1
+    return np.flatnonzero(mask), new_index[faces].reshape(-1, 3)
 
 
 def npz_bytes(arrays: dict[str, np.ndarray | None]) -> bytes:
