@@ -93,7 +93,10 @@ class ReferenceLine:
 
     @property
     def geometries(self) -> tuple[Geometry, ...]:
-        return geometries_from_rows(self.rows, self.lines, self.extra_xml)
+        # without side rows every record is a line or an arc (split_rows puts every other kind there), whose
+        # parameters the narrow rows hold: no full rows made for them (the writer asks for every road's)
+        rows = self.narrow if not len(self.side_index) else self.rows
+        return geometries_from_rows(rows, self.lines, self.extra_xml)
 
     @property
     def table(self) -> GeometryTable:
