@@ -169,3 +169,29 @@ def test_a_locator_near_a_drive_locates_it_as_the_whole_maps_locator(tavf_xodr):
             np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
     near = graph.locator(near=(drive[:, 0], drive[:, 1]), candidates=16)
     assert len(near.s) < 0.5 * len(whole.s), "a drive's neighbourhood, not the whole map"
+
+
+def test_samples_of_some_lanes_are_those_of_the_whole_table(tavf_xodr):
+    """The lane graph keeps no centre-line samples (a region's are 200 MB); those of some lanes, evaluated when
+    asked, are exactly the whole table's samples of those lanes."""
+    from tavf_mapkit.lanegraph.geometry import LaneTable
+
+    odr = load_opendrive(tavf_xodr)
+    graph = LaneGraph.from_opendrive(odr)
+    driving = odr.arrays.lane_type == "driving"
+    whole = LaneTable.build(odr, 1.0, keep=driving)
+    row, s, xy = graph.samples()
+    np.testing.assert_array_equal(row, whole.sample_row)
+    np.testing.assert_array_equal(s, whole.sample_s)
+    np.testing.assert_array_equal(xy, whole.sample_xy)
+    some = np.zeros(len(driving), dtype=bool)
+    some[np.flatnonzero(driving)[::7]] = True
+    row, s, xy = graph.samples(some)
+    picked = some[whole.sample_row]
+    assert 0 < picked.sum() < len(picked)
+    np.testing.assert_array_equal(row, whole.sample_row[picked])
+    np.testing.assert_array_equal(s, whole.sample_s[picked])
+    np.testing.assert_array_equal(xy, whole.sample_xy[picked])
+    # each lane's box holds its samples
+    box = graph._table.box[row]
+    assert np.all((xy >= box[:, :2]) & (xy <= box[:, 2:]))

@@ -20,38 +20,35 @@ MAX_TABLE_SAMPLES = 25_000_000
 
 @dataclass(frozen=True, eq=False)
 class LaneTable:
-    """Per row of ``odr.arrays``' lane table (in s direction): centre-line length, first and last point;
-    and the centre-line samples of the kept rows (row, s, plan-view point), sorted by row then s."""
+    """Per row of ``odr.arrays``' lane table (in s direction): centre-line length, first and last point, plan-view
+    bounding box of the centre line; and the centre-line samples of the kept rows (row, s, plan-view point),
+    sorted by row then s (None when built with ``keep_samples=False``: see ``lane_samples``)."""
 
     length: np.ndarray
     first: np.ndarray  # (n, 3) centre point at the section start
     last: np.ndarray   # (n, 3) centre point at the section end
-    sample_row: np.ndarray  # int32
-    sample_s: np.ndarray
-    sample_xy: np.ndarray  # (m, 2), no lane height
+    sample_row: np.ndarray | None  # int32
+    sample_s: np.ndarray | None
+    sample_xy: np.ndarray | None  # (m, 2), no lane height
+    box: np.ndarray | None = None  # (n, 4) x min, y min, x max, y max of the centre samples (NaN: none)
 
     @staticmethod
     def build(odr, step: float = 1.0, keep: np.ndarray | None = None,
-              chunk_samples: int = CHUNK_SAMPLES) -> LaneTable:
+              chunk_samples: int = CHUNK_SAMPLES, keep_samples: bool = True) -> LaneTable:
         """``keep``: a mask of lane-table rows whose samples the table keeps (default all); lengths and end
         points are those of every row. Chunks of whole lane sections in map order give the same numbers, to
-        the bit, as sampling the whole map at once (every number is a lane's own)."""
+        the bit, as sampling the whole map at once (every number is a lane's own). ``keep_samples=False``: no
+        samples are kept (a region's are 28 bytes each, 204 MB on Columbus), only each row's bounding box."""
         arrays = odr.arrays
         n = len(arrays.lane_id)
         keep = np.ones(n, dtype=bool) if keep is None else np.asarray(keep, dtype=bool)
         length = np.zeros(n)
         first = np.zeros((n, 3))
         last = np.zeros((n, 3))
+        box = np.full((n, 4), np.nan)
         has = np.zeros(n, dtype=bool)
         kept_rows, kept_s, kept_xy = [], [], []
-        # a chunk may overshoot its bound by one section: half the map's ceiling keeps it within that
-        chunk_samples = min(chunk_samples, arrays.budget.max_points // 2)
-        for sections in section_chunks(arrays, step, chunk_samples, MAX_TABLE_SAMPLES):
-            sampling = sample_lanes_at(odr, *section_samples(arrays, step, True, sections))
-            rows = sampling.pair_lane
-            if not len(rows):
-                continue
-            centre = sampling.center_points(with_height=False)
+        for rows, s, centre in _sampled_chunks(odr, step, chunk_samples):
             low = int(rows[0])  # rows come out ascending: lane by lane, sections in map order
             lanes = np.arange(low, int(rows[-1]) + 1)
             segment = np.linalg.norm(np.diff(centre, axis=0), axis=1)
@@ -64,21 +61,65 @@ class LaneTable:
             first[lanes[sampled]] = centre[begin[sampled]]
             last[lanes[sampled]] = centre[end[sampled]]
             has[lanes[sampled]] = True
-            wanted = keep[rows]
-            kept_rows.append(rows[wanted].astype(np.int32))
-            kept_s.append(sampling.s[wanted])
-            kept_xy.append(centre[wanted, :2])
-            del sampling, centre, segment
+            starts = begin[sampled]
+            for column, (reduce, axis) in enumerate(((np.minimum, 0), (np.minimum, 1), (np.maximum, 0),
+                                                      (np.maximum, 1))):
+                box[lanes[sampled], column] = reduce.reduceat(centre[:, axis], starts)
+            if keep_samples:
+                wanted = keep[rows]
+                kept_rows.append(rows[wanted].astype(np.int32))
+                kept_s.append(s[wanted])
+                kept_xy.append(centre[wanted, :2])
+            del centre, segment
         if not np.all(has):  # zero-length lane sections get no samples: evaluate their single point
             missing = np.flatnonzero(~has)
             s = arrays.section_s0[arrays.lane_section[missing]]
             first[missing] = last[missing] = centre_points(odr, missing, s)
+        if not keep_samples:
+            return LaneTable(length, first, last, None, None, None, box)
         # one column at a time, each chunk list let go once joined: a region's samples are held twice over
         # only one column at a time (Columbus: the points, 117 MB, not all three columns, 204 MB)
         sample_row = _joined(kept_rows, np.zeros(0, dtype=np.int32))
         sample_s = _joined(kept_s, np.zeros(0))
         sample_xy = _joined(kept_xy, np.zeros((0, 2)))
-        return LaneTable(length, first, last, sample_row, sample_s, sample_xy)
+        return LaneTable(length, first, last, sample_row, sample_s, sample_xy, box)
+
+
+def lane_samples(odr, step: float, rows: np.ndarray, chunk_samples: int = CHUNK_SAMPLES):
+    """(row int32, s, plan-view point) of the centre-line samples of lane-table rows ``rows`` (a mask), sorted
+    by row then s: exactly those ``LaneTable.build(odr, step, keep=rows)`` keeps, sampling only the lane
+    sections of those rows."""
+    arrays = odr.arrays
+    rows = np.asarray(rows, dtype=bool)
+    wanted_sections = np.zeros(len(arrays.section_s0), dtype=bool)
+    wanted_sections[arrays.lane_section[rows]] = True
+    kept_rows, kept_s, kept_xy = [], [], []
+    for row, s, centre in _sampled_chunks(odr, step, chunk_samples, wanted_sections):
+        wanted = rows[row]
+        kept_rows.append(row[wanted].astype(np.int32))
+        kept_s.append(s[wanted])
+        kept_xy.append(centre[wanted, :2])
+    return (_joined(kept_rows, np.zeros(0, dtype=np.int32)), _joined(kept_s, np.zeros(0)),
+            _joined(kept_xy, np.zeros((0, 2))))
+
+
+def _sampled_chunks(odr, step: float, chunk_samples: int, sections: np.ndarray | None = None):
+    """(lane row, s, centre point (m, 3)) of every lane sample at ``step``, a chunk of whole lane sections at a
+    time (only the sections in the mask ``sections`` when given), rows ascending."""
+    arrays = odr.arrays
+    # a chunk may overshoot its bound by one section: half the map's ceiling keeps it within that
+    chunk_samples = min(chunk_samples, arrays.budget.max_points // 2)
+    for chunk in section_chunks(arrays, step, chunk_samples, MAX_TABLE_SAMPLES):
+        if sections is not None:
+            chunk = chunk[sections[chunk]]
+            if not len(chunk):
+                continue
+        sampling = sample_lanes_at(odr, *section_samples(arrays, step, True, chunk))
+        rows = sampling.pair_lane
+        if not len(rows):
+            continue
+        yield rows, sampling.s, sampling.center_points(with_height=False)
+        del sampling
 
 
 def _joined(parts: list, empty: np.ndarray) -> np.ndarray:

@@ -16,7 +16,7 @@ import numpy as np
 
 from tavf_mapkit.errors import MapkitError
 from tavf_mapkit.lanegraph.edges import FOLLOW, KIND_NAMES, LEFT, RIGHT, EdgeArrays, euclidean
-from tavf_mapkit.lanegraph.geometry import LaneTable, centre_points, section_s_values
+from tavf_mapkit.lanegraph.geometry import LaneTable, centre_points, lane_samples, section_s_values
 from tavf_mapkit.lanegraph.keys import LaneKey, drives_with_s, lane_toward_minus_t, lane_toward_plus_t
 from tavf_mapkit.lanegraph.lanechange import lane_change_allowed
 from tavf_mapkit.lanegraph.topology import lane_end_pairs
@@ -64,8 +64,8 @@ class LaneGraph:
         same-direction neighbours where the road mark between them allows it."""
         arrays = odr.arrays
         types = set(lane_types)
-        # the index keeps the centre-line samples of the graph's lanes only (a city's sidewalks are as many)
-        table = LaneTable.build(odr, step, keep=np.isin(arrays.lane_type, sorted(types)))
+        # lengths, end points and boxes; the centre-line samples only when asked (``samples``, ``locator``)
+        table = LaneTable.build(odr, step, keep_samples=False)
         section_first = np.searchsorted(arrays.section_road, np.arange(len(odr.roads)), side="left")
         keys: list[LaneKey] = []
         rows: list[int] = []
@@ -330,35 +330,51 @@ class LaneGraph:
             return frozenset()
         return frozenset(max(components, key=lambda c: (sum(self.length(k) for k in c), len(c), min(c))))
 
+    def samples(self, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(lane-table row, road s, plan-view point) of the centre-line samples at the graph's step of its lanes
+        (or of the lane-table rows in the mask ``rows``), sorted by row then s; evaluated when asked, not kept
+        (a region's are 200 MB)."""
+        wanted = np.zeros(len(self._table.length), dtype=bool)
+        wanted[self._row] = True
+        if rows is not None:
+            wanted &= rows
+        return lane_samples(self.odr, self.step, wanted)
+
     def locator(self, near: tuple[np.ndarray, np.ndarray] | None = None, candidates: int = 16,
                 margin: float = 100.0):
         """A ``LaneLocator`` over the graph's lane-centre samples: ``LaneLocator(odr, step, lane_types)`` with
-        the graph's step and lane types gives the same, but samples the whole map again at once (on a region
-        more than one allocation may hold).
+        the graph's step and lane types gives the same, but samples the whole map at once (on a region more
+        than one allocation may hold).
 
-        ``near=(x, y)``: a locator only for those points (a drive's trajectory), over the samples in their
-        bounding box widened until every point's ``candidates`` nearest samples lie inside it; it locates
-        them as the whole map's locator does (a sample left out is farther from every point than the box's
-        margin, and so than each point's ``candidates``-th nearest kept one). A region's 7 million samples
-        make a tree of some 200 MB and seconds; a drive's neighbourhood, a few thousand."""
+        ``near=(x, y)``: a locator only for those points (a drive's trajectory), over the samples of the lanes
+        whose centre lines come into their bounding box widened until every point's ``candidates`` nearest
+        samples lie inside it; it locates them as the whole map's locator does (a sample left out lies outside
+        the box, farther from every point than the box's margin, and so than each point's ``candidates``-th
+        nearest kept one). A region's 7 million samples make a tree of some 200 MB; a drive's neighbourhood,
+        a few thousand samples."""
         from tavf_mapkit.opendrive.locate import LaneLocator
 
-        table = self._table
-        row, s, xy = table.sample_row, table.sample_s, table.sample_xy
+        box = self._table.box
+        mine = np.zeros(len(box), dtype=bool)
+        mine[self._row] = True
         if near is not None and len(np.atleast_1d(near[0])):
             points = np.column_stack([np.atleast_1d(near[0]), np.atleast_1d(near[1])]).astype(float)
             low, high = points.min(axis=0), points.max(axis=0)
             while np.all(np.isfinite(points)):
-                inside = np.flatnonzero(np.all((xy >= low - margin) & (xy <= high + margin), axis=1))
-                if len(inside) == len(xy):
+                rows = mine & (box[:, 2] >= low[0] - margin) & (box[:, 0] <= high[0] + margin) & \
+                    (box[:, 3] >= low[1] - margin) & (box[:, 1] <= high[1] + margin)
+                if np.array_equal(rows, mine):
                     break
-                if len(inside) >= candidates:
+                row, s, xy = self.samples(rows)
+                if len(s) >= candidates:
+                    inside = np.all((xy >= low - margin) & (xy <= high + margin), axis=1)
                     locator = LaneLocator.from_samples(self.odr, row[inside], s[inside], xy[inside])
-                    distance, _ = locator.tree.query(points, k=candidates)
-                    if float(np.max(distance[:, -1])) < margin:
-                        return locator
+                    if np.count_nonzero(inside) >= candidates:
+                        distance, _ = locator.tree.query(points, k=candidates)
+                        if float(np.max(distance[:, -1])) < margin:
+                            return locator
                 margin *= 4.0
-        return LaneLocator.from_samples(self.odr, row, s, xy)
+        return LaneLocator.from_samples(self.odr, *self.samples())
 
     @cached_property
     def total_length(self) -> float:

@@ -35,11 +35,11 @@ class LaneIndex:
         row_of = np.array([graph.row(k) for k in keys], dtype=np.int64)
         node_of_row = np.full(len(table.length), -1, dtype=np.int64)
         node_of_row[row_of] = np.arange(len(keys))
-        keep = node_of_row[table.sample_row] >= 0
+        sample_row, sample_s, sample_xy = graph.samples()  # the graph's lanes only
         self.keys = keys
-        self.node = node_of_row[table.sample_row[keep]]
-        self.s = table.sample_s[keep]
-        self.xy = table.sample_xy[keep]
+        self.node = node_of_row[sample_row]
+        self.s = sample_s
+        self.xy = sample_xy
         self.forward = np.array([graph.drives_with_s(k) for k in keys], dtype=bool)
         self.length = table.length[row_of]
         # arc length from the section start (s direction) at each sample
