@@ -168,7 +168,8 @@ class _Reader:
         return out
 
     def line(self, element) -> int | None:
-        return element.sourceline + self.source.line_offset if element.sourceline else None
+        line = element.sourceline  # computed by lxml on each read
+        return line + self.source.line_offset if line else None
 
     def error(self, message: str, element=None, road: str | None = None) -> InputError:
         return InputError(message, file=self.source.name, line=self.line(element) if element is not None else None,
@@ -434,7 +435,8 @@ class _Reader:
                     total = s + x + y + hdg + length + curvature
                     if total - total == 0.0 and length > 0.0:
                         rows += (s, x, y, hdg, length, _ARC if tag == "arc" else _LINE, curvature)
-                        lines.append(g.sourceline + line_offset if g.sourceline else -1)
+                        line = g.sourceline  # a property lxml computes: read once
+                        lines.append(line + line_offset if line else -1)
                         continue
             plain = _plain_geometry_row(g)
             if plain is not None:
@@ -443,7 +445,8 @@ class _Reader:
                     side_index.append(len(lines))
                     side_params.append(params)
                 rows += row
-                lines.append(g.sourceline + line_offset if g.sourceline else -1)
+                line = g.sourceline
+                lines.append(line + line_offset if line else -1)
                 continue
             s = self.number(g, "s", required=True)
             x = self.number(g, "x", required=True)
