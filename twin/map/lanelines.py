@@ -20,7 +20,7 @@ from tavf_mapkit.lanegraph import LaneGraph, LaneKey
 from tavf_mapkit.mesh.exact import run_cumsum
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, slots=True)  # slots: a region's start holds one per lane (161,781 on Columbus)
 class LaneLine:
     key: LaneKey
     points: np.ndarray  # (n, 3) in driving direction, at most ``step`` apart
@@ -191,8 +191,9 @@ class LaneLines:
         along = run_cumsum(np.r_[0.0, np.where(lane[1:] == lane[:-1], step, 0.0)], lane)
         along = np.split(along, np.cumsum(counts)[:-1])
         for key, line, distance in zip(missing, lines, along):
-            # a line of its own (not a view into the whole batch), as the fold filter's copy was
-            self._cache[key] = LaneLine(key, np.ascontiguousarray(line), distance, self.graph.speed_limit(key))
+            # a line of its own, always a copy: a view (a lane driven with s) would keep the whole batch's points
+            # alive, the copies of the reversed lanes beside them (Columbus: ~90 MB of lines held twice)
+            self._cache[key] = LaneLine(key, np.array(line), distance, self.graph.speed_limit(key))
 
 
 def lane_batches(graph: LaneGraph, keys: list[LaneKey], step: float):
