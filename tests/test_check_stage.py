@@ -63,6 +63,9 @@ def test_check_stage_writes_reports_and_evaluates_thresholds(sample_build_dir, t
     for name in ("check.json", "validate.json", "compare.json", "compare.png", "match-trace.json",
                  "match-trace.png", "index.html"):
         assert (context.folder / "report" / name).is_file(), name
+    # the file as the build names it, not the path in the staging folder it was read from
+    validated = json.loads((context.folder / "report" / "validate.json").read_text())
+    assert validated["file"] == report["file"] == context.artifacts["xodr"].name
     html = (context.folder / "report" / "index.html").read_text()
     assert html.count("<img alt=") == 2
     # self-contained: no link out in the markup (base64 data is removed first, it can spell "http" by chance;

@@ -119,8 +119,9 @@ class CheckStage(Stage):
             raise StageError(f"the OpenDRIVE is unreadable: {error}") from None
         if unreadable is not None:
             raise StageError(f"the OpenDRIVE is unreadable: {unreadable}")
-        context.output_path("report/validate.json").write_text(json.dumps(report.to_dict(), indent=2) + "\n",
-                                                               encoding="utf-8")
+        # the file as the build names it: the path read is in the staging folder, gone once the build is in place
+        written = {**report.to_dict(), "file": xodr.name}
+        context.output_path("report/validate.json").write_text(json.dumps(written, indent=2) + "\n", encoding="utf-8")
         files["validate_report"] = "report/validate.json"
         return {**report.summary, **_findings_by_rule(report)}, odr, list(report.findings)
 
