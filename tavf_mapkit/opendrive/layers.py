@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tavf_mapkit.opendrive.sampling import sample_lanes, section_samples
+from tavf_mapkit.opendrive.surface import surface_points
 
 LAYERS = ("reference-line", "lane-border", "lane-center", "lane", "road-mark", "object", "signal")
 
@@ -44,9 +45,11 @@ def reference_line_features(odr, step: float):
                                               "length": road.length})
 
 
-def lane_features(odr, step: float, layer: str):
-    sampling = sample_lanes(odr, step)
-    road_ids = [road.id for road in odr.roads]
+def lane_features(odr, step: float, layer: str, sampling=None):
+    """Features of a lane layer; ``sampling``: the lanes already sampled every ``step`` m (a whole map's
+    ``sample_lanes``, or a run of its lane sections, ``sample_lane_chunks``), so that several layers share one."""
+    sampling = sample_lanes(odr, step) if sampling is None else sampling
+    roads = odr.roads
     if layer == "lane-border":
         points = sampling.outer_border_points()
     elif layer == "lane-center":
@@ -57,7 +60,7 @@ def lane_features(odr, step: float, layer: str):
     for start, end in _lane_runs(sampling):
         if end - start < 2:
             continue
-        properties = {"road": road_ids[sampling.road_index[start]], "section_s0": float(sampling.section_s0[start]),
+        properties = {"road": roads[sampling.road_index[start]].id, "section_s0": float(sampling.section_s0[start]),
                       "lane": int(sampling.lane_id[start]), "type": str(sampling.lane_type[start])}
         if layer == "lane":
             ring = np.concatenate([inner[start:end], outer[start:end][::-1], inner[start:start + 1]])
@@ -66,10 +69,10 @@ def lane_features(odr, step: float, layer: str):
             yield Feature("LineString", points[start:end], properties)
 
 
-def road_mark_features(odr, step: float):
-    sampling = sample_lanes(odr, step)
+def road_mark_features(odr, step: float, sampling=None):
+    """Features of the road-mark layer; ``sampling`` as for ``lane_features``."""
+    sampling = sample_lanes(odr, step) if sampling is None else sampling
     border = sampling.outer_border_points()
-    road_ids = [road.id for road in odr.roads]
     for start, end in _lane_runs(sampling):
         road = odr.roads[sampling.road_index[start]]
         section = road.lane_sections[int(np.searchsorted(road.section_starts, sampling.section_s0[start],
@@ -83,27 +86,37 @@ def road_mark_features(odr, step: float):
             if keep.sum() < 2:
                 continue
             yield Feature("LineString", border[start:end][keep], {
-                "road": road_ids[sampling.road_index[start]], "lane": lane.id, "type": mark.type,
+                "road": road.id, "lane": lane.id, "type": mark.type,
                 "color": mark.color, "width": mark.width, "s_offset": mark.s_offset})
 
 
+def _placed_points(odr, items) -> np.ndarray:
+    """(n, 3) surface points of (road index, s, t, z_offset) items, all in one evaluation through the map's
+    arrays (NetworkArrays.reference: the same geometry, elevation and superelevation tables as a Road's)."""
+    if not items:
+        return np.zeros((0, 3))
+    road, s, t, h = (np.array(column) for column in zip(*items))
+    x, y, z, heading, slope, superelevation, _ = odr.arrays.reference(road.astype(np.int64), s.astype(float))
+    return surface_points(x, y, z, heading, slope, superelevation, t.astype(float), h.astype(float))
+
+
 def object_features(odr):
-    for road in odr.roads:
-        for o in road.objects:
-            point = road.surface_point([o.s], o.t, o.z_offset)[0]
-            yield Feature("Point", point[None, :], {
-                "road": road.id, "id": o.id, "type": o.type, "name": o.name, "s": o.s, "t": o.t,
-                "length": o.length, "width": o.width, "height": o.height, "radius": o.radius, "hdg": o.hdg})
+    placed = [(index, road, o) for index, road in enumerate(odr.roads) for o in road.objects]
+    points = _placed_points(odr, [(index, o.s, o.t, o.z_offset) for index, _, o in placed])
+    for (_, road, o), point in zip(placed, points):
+        yield Feature("Point", point[None, :], {
+            "road": road.id, "id": o.id, "type": o.type, "name": o.name, "s": o.s, "t": o.t,
+            "length": o.length, "width": o.width, "height": o.height, "radius": o.radius, "hdg": o.hdg})
 
 
 def signal_features(odr):
-    for road in odr.roads:
-        for signal in road.signals:
-            point = road.surface_point([signal.s], signal.t, signal.z_offset)[0]
-            yield Feature("Point", point[None, :], {
-                "road": road.id, "id": signal.id, "type": signal.type, "subtype": signal.subtype,
-                "country": signal.country, "dynamic": signal.dynamic, "value": signal.value, "name": signal.name,
-                "s": signal.s, "t": signal.t, "orientation": signal.orientation})
+    placed = [(index, road, signal) for index, road in enumerate(odr.roads) for signal in road.signals]
+    points = _placed_points(odr, [(index, signal.s, signal.t, signal.z_offset) for index, _, signal in placed])
+    for (_, road, signal), point in zip(placed, points):
+        yield Feature("Point", point[None, :], {
+            "road": road.id, "id": signal.id, "type": signal.type, "subtype": signal.subtype,
+            "country": signal.country, "dynamic": signal.dynamic, "value": signal.value, "name": signal.name,
+            "s": signal.s, "t": signal.t, "orientation": signal.orientation})
 
 
 def layer_features(odr, layer: str, step: float):

@@ -149,6 +149,20 @@ def sample_lanes(odr, step: float = 0.5, include_end: bool = True) -> LaneSampli
     return sample_lanes_at(odr, *section_samples(odr.arrays, step, include_end))
 
 
+def sample_lane_chunks(odr, step: float = 0.5, chunk_points: int = 500_000, include_end: bool = True):
+    """``sample_lanes(odr, step, include_end)`` in parts: one LaneSampling per run of consecutive lane sections
+    (``section_chunks``, about ``chunk_points`` lane samples each), in map order. Every number is the whole
+    map's (each sample is evaluated on its own), so the parts' pairs, one after the other, are the whole
+    sampling's; a map is refused as ``section_chunks`` refuses it."""
+    for sections in section_chunks(odr.arrays, step, chunk_points):
+        yield sample_sections(odr, step, sections, include_end)
+
+
+def sample_sections(odr, step: float, sections: np.ndarray, include_end: bool = True) -> LaneSampling:
+    """``sample_lanes`` of the given lane sections only (the same samples and numbers as the whole map's)."""
+    return sample_lanes_at(odr, *section_samples(odr.arrays, step, include_end, sections))
+
+
 def sample_lanes_at(odr, sample_section: np.ndarray, sample_s: np.ndarray) -> LaneSampling:
     """Reference frame at each sample and border offsets of every side lane of its section.
 

@@ -27,6 +27,9 @@ DIGITS = 7           # decimals of lon/lat: 1.1 cm
 #: lane and mark features projected and encoded this many at a time by ``map_json``: as GeoJSON dicts a city's
 #: layers are about ten times their JSON text (Columbus: ~300 MiB of dicts for the lanes, 60 MB of text)
 FEATURE_BATCH = 20_000
+#: lane samples per part of the lane sampling both layers share (``sample_lane_chunks``): ~100 MiB of samples,
+#: points and features while a part is made into features
+SAMPLE_CHUNK = 500_000
 
 
 def map_data(odr, *, name: str, findings=(), repairs=None, match=None, attribution: str | None = None,
@@ -57,16 +60,8 @@ def _map_items(odr, name, findings, repairs, match, attribution, step, batch: in
     def layer(value: dict) -> dict | _JSONText:
         return value if batch is None else _JSONText([_dumps(value)])
 
-    def collection(kind: str) -> tuple[dict | _JSONText, int]:
-        features = layer_features(odr, kind, step)
-        if batch is None:
-            value = project.collection(features)
-            return value, len(value["features"])
-        return project.collection_json(features, batch)
-
     layers = {}
-    layers["lanes"], lane_count = collection("lane")
-    layers["marks"], _ = collection("road-mark")
+    (layers["lanes"], lane_count), (layers["marks"], _) = _lane_and_mark_layers(odr, project, step, batch)
     layers["signals"] = layer(project.collection(layer_features(odr, "signal", step)))
     layers["objects"] = layer(project.collection(layer_features(odr, "object", step)))
     layers["junctions"] = layer(project.shapes(_junction_outlines(odr, step)))
@@ -84,6 +79,49 @@ def _map_items(odr, name, findings, repairs, match, attribution, step, batch: in
         "lane_count": lane_count,
         "layers": layers if batch is None else _JSONText(_encode_object(layers)),
     }
+
+
+def _lane_and_mark_layers(odr, project: "_Projector", step: float, batch: int | None):
+    """((lanes, count), (marks, count)): both layers from one sampling of the lanes, made a run of lane sections
+    at a time (``sample_lane_chunks``: a part's samples are the whole map's, so are the features) and fed to
+    one collection per layer, so only a chunk's samples and a batch's features per layer are held."""
+    from tavf_mapkit.opendrive.layers import lane_features, road_mark_features
+    from tavf_mapkit.opendrive.sampling import sample_lane_chunks
+
+    lanes, marks = _Collector(project, batch), _Collector(project, batch)
+    for sampling in sample_lane_chunks(odr, step, SAMPLE_CHUNK):
+        lanes.extend(lane_features(odr, step, "lane", sampling))
+        marks.extend(road_mark_features(odr, step, sampling))
+        del sampling
+    return lanes.finish(), marks.finish()
+
+
+class _Collector:
+    """Features in, one layer out: a FeatureCollection dict (``batch`` None), or its JSON text made ``batch``
+    features at a time (``_Projector.collection_json``), fed as the features come."""
+
+    def __init__(self, project: "_Projector", batch: int | None):
+        self.project, self.batch = project, batch
+        self.pending, self.parts, self.count = [], [], 0
+
+    def extend(self, features) -> None:
+        for feature in features:
+            self.pending.append(feature)
+            if self.batch is not None and len(self.pending) >= self.batch:
+                self._flush()
+
+    def _flush(self) -> None:
+        if self.pending:
+            self.parts.append(self.project.collection_piece(self.pending, bool(self.parts)))
+            self.count += len(self.pending)
+            self.pending = []
+
+    def finish(self) -> tuple[dict | _JSONText, int]:
+        if self.batch is None:
+            value = self.project.collection(self.pending)
+            return value, len(value["features"])
+        self._flush()
+        return _JSONText(['{"type":"FeatureCollection","features":[', *self.parts, "]}"]), self.count
 
 
 def _dumps(value) -> str:
@@ -168,11 +206,15 @@ class _Projector:
         features = iter(features)
         parts, count = [], 0
         while chunk := list(islice(features, batch)):
-            out = self.collection(chunk)["features"]
-            count += len(out)
-            parts.append(("," if parts else "") + _dumps(out)[1:-1])  # a list's items, without its brackets
-            del chunk, out
+            parts.append(self.collection_piece(chunk, bool(parts)))
+            count += len(chunk)
+            del chunk
         return _JSONText(['{"type":"FeatureCollection","features":[', *parts, "]}"]), count
+
+    def collection_piece(self, features: list, after: bool) -> str:
+        """The features' items of ``_dumps(self.collection(features))["features"]``, without the list's
+        brackets (a comma first when ``after`` others)."""
+        return ("," if after else "") + _dumps(self.collection(features)["features"])[1:-1]
 
     def shapes(self, shapes: dict) -> dict:
         """{id: shapely (Multi)Polygon} -> outlines as GeoJSON polygons."""
@@ -201,10 +243,14 @@ def _corners(odr) -> tuple[np.ndarray, np.ndarray]:
 
 def _junction_outlines(odr, step: float) -> dict:
     from tavf_mapkit.mesh.junctions import junction_footprints
-    from tavf_mapkit.opendrive.sampling import sample_lanes
+    from tavf_mapkit.opendrive.sampling import sample_sections
 
-    sampling = sample_lanes(odr, step)
-    return junction_footprints(odr, sampling, np.zeros(len(odr.arrays.lane_id), dtype=bool))
+    # only the junctions' lane sections are sampled: the outlines are made of their lanes alone
+    arrays = odr.arrays
+    in_junction = np.array([road.in_junction for road in odr.roads], dtype=bool)
+    sections = np.flatnonzero(in_junction[arrays.section_road]) if len(arrays.section_road) else np.zeros(0, int)
+    sampling = sample_sections(odr, step, sections)
+    return junction_footprints(odr, sampling, np.zeros(len(arrays.lane_id), dtype=bool))
 
 
 def place_on_road(odr, road_id, lane, s) -> np.ndarray | None:
