@@ -16,6 +16,7 @@ from tavf_mapkit.errors import InputError
 from tavf_mapkit.lanegraph import LaneGraph, LaneKey
 from tavf_mapkit.opendrive import load_opendrive, loads_opendrive
 from twin.cli.main import cli
+import twin.map.lanelines as lanelines_module
 from twin.map.lanelines import LaneLines, without_folds, without_loops
 from twin.planning.buffer import PathBuffer
 from twin.planning.chunks import (RESTART, TURNAROUND, LaneCodes, RouteBreak, RouteStalled, expand_route,
@@ -384,3 +385,65 @@ def test_loops_of_many_lines_cut_at_once_are_each_lines_own_cuts():
         assert np.array_equal(cut, expected)
         changed += len(expected) != len(line)
     assert changed > 20
+
+
+def _lines_kept(lines):
+    return len(lines._cache)
+
+
+def test_route_selection_keeps_lane_ends_only_and_decides_as_on_whole_lines(berlin_build):
+    """A region's route selection measures every lane's line once, batch by batch, and keeps only each lane's
+    length and first and last metres (Columbus: 161,781 lines held ~300 MB beside the map). Its lanes, steps,
+    turnarounds and walks are those of whole lines, and the ends are the whole lines' points, to the bit."""
+    graph = LaneGraph.from_opendrive(load_opendrive(Build.open(berlin_build).xodr))
+    keys = sorted(graph.keys)
+    whole = LaneLines(graph)
+    whole.preload(keys)
+    expected = RandomRoutes(graph, whole)
+    lines = LaneLines(graph)
+    routes = RandomRoutes(graph, lines)
+    assert _lines_kept(lines) == 0
+    assert routes.undrivable == expected.undrivable and routes.transitions == expected.transitions
+    assert (routes.mode, routes.lanes, routes._follow, routes._lateral, routes._turnaround, routes._towards) == \
+        (expected.mode, expected.lanes, expected._follow, expected._lateral, expected._turnaround, expected._towards)
+    assert _items(routes, 500, seed=3) == _items(expected, 500, seed=3)
+    truncated = 0
+    for key in keys:
+        ends, line = lines.ends(key), whole[key]
+        n, h, t = len(line.along), len(ends.head), len(ends.tail)
+        assert ends.length == line.length and min(h, t) >= min(n, 2)
+        assert np.array_equal(ends.head, line.points[:h, :2]) and np.array_equal(ends.head_along, line.along[:h])
+        assert np.array_equal(ends.tail, line.points[n - t:, :2]) and np.array_equal(ends.tail_along, line.along[n - t:])
+        assert h == n or line.along[h] > lanelines_module.ENDS_HEAD
+        assert t == n or line.along[n - t] <= line.length - lanelines_module.ENDS_TAIL < line.along[n - t + 1]
+        truncated += t < n
+    assert truncated > len(keys) // 4
+
+
+def test_a_join_blended_from_beyond_a_lanes_kept_end_reads_the_whole_line(monkeypatch):
+    """A lane that starts metres beside the end of the one before is joined by a blend that replaces up to 20 m
+    of that lane, more than its kept end: the step is measured on the whole line, as when all were kept."""
+    from twin.planning.drivable import REACH, _step_polyline
+
+    def roads(aside):
+        return (_road("1", 0, 0, 0, 100, link='<successor elementType="road" elementId="2" contactPoint="start"/>',
+                      lane_link='<successor id="-1"/>'),
+                _road("2", 100, -aside, 0.1, 100,
+                      link='<predecessor elementType="road" elementId="1" contactPoint="end"/>',
+                      lane_link='<predecessor id="-1"/>'))
+
+    read = []
+    whole_line = LaneLines.line
+    monkeypatch.setattr(LaneLines, "line", lambda self, key: read.append(key) or whole_line(self, key))
+    a, b = LaneKey(0, 0, -1), LaneKey(1, 0, -1)
+    for aside, reads in ((0.0, 0), (1.0, 0), (3.0, 1)):  # blends of 0 m, 8 m (inside the kept end), 20 m
+        graph, lines = _graph(*roads(aside))
+        assert graph.successors(a) == [b]
+        whole = LaneLines(graph)
+        whole.preload(graph.keys)
+        list(lines.scan(graph.keys))
+        read.clear()
+        step = _step_polyline(lines, a, b)
+        assert len(read) == reads and _lines_kept(lines) == 0
+        assert np.array_equal(step, _step_polyline(whole, a, b))
+        assert len(lines.ends(a).tail) < len(whole[a].points) and lines.ends(a).length > 4 * REACH

@@ -149,6 +149,87 @@ def without_folds(points: np.ndarray) -> np.ndarray:
     return points
 
 
+@dataclass(frozen=True, eq=False, slots=True)
+class LaneEnds:
+    """A lane's length and, in plan view, the points of its first and last metres with their arc length from
+    the lane's entry (the whole line's values, to the bit): ``head`` every point within ``ENDS_HEAD`` m of
+    the entry, ``tail`` every point within ``ENDS_TAIL`` m of the exit and the last one before them, each at
+    least two points (of lines with two). ``whole``: both are the whole line."""
+
+    length: float
+    head: np.ndarray  # (h, 2)
+    head_along: np.ndarray  # (h,)
+    tail: np.ndarray  # (t, 2)
+    tail_along: np.ndarray  # (t,)
+    whole: bool
+
+    @classmethod
+    def of(cls, line: LaneLine) -> LaneEnds:
+        return cls(line.length, line.points[:, :2], line.along, line.points[:, :2], line.along, True)
+
+    def tail_from(self, along: float) -> bool:
+        """Does ``tail`` hold every point from ``along`` (m from the entry) on, and the last one before?"""
+        return self.whole or along >= self.length - ENDS_TAIL
+
+
+#: m of a lane's entry and exit kept for route selection (``LaneLines.scan``): what ``twin.planning.drivable``
+#: measures of a step between lanes (its REACH of 8 m, and at the exit up to 8 m a join's blend replaces)
+ENDS_HEAD, ENDS_TAIL = 8.0, 16.0
+
+
+class _EndsTable:
+    """``LaneEnds`` of many lanes in a few flat arrays (a region has 161,781 lanes: an object and four arrays
+    per lane would cost more than the points)."""
+
+    def __init__(self):
+        self.index: dict[LaneKey, int] = {}
+        self._parts: list[tuple] = []
+        self._arrays = None
+
+    def add(self, lines: list[LaneLine]) -> None:
+        if not lines:
+            return
+        counts = np.array([len(line.along) for line in lines])
+        points = np.concatenate([line.points[:, :2] for line in lines])
+        along = np.concatenate([line.along for line in lines])
+        lane = np.repeat(np.arange(len(lines)), counts)
+        first = np.cumsum(counts) - counts
+        position = np.arange(len(along)) - first[lane]
+        length = np.array([line.length for line in lines])
+        head = (along <= ENDS_HEAD) | (position < 2)
+        # the tail: points beyond length - ENDS_TAIL, the last point at or before it, and the last two points
+        limit = length[lane] - ENDS_TAIL
+        beyond = along > limit
+        next_beyond = np.r_[beyond[1:], False] & np.r_[lane[1:] == lane[:-1], False]
+        tail = beyond | next_beyond | (position >= counts[lane] - 2)
+        for key in (line.key for line in lines):
+            self.index[key] = len(self.index)
+        self._parts.append((length, np.bincount(lane[head], minlength=len(lines)), points[head], along[head],
+                            np.bincount(lane[tail], minlength=len(lines)), points[tail], along[tail]))
+        self._arrays = None
+
+    def __contains__(self, key: LaneKey) -> bool:
+        return key in self.index
+
+    def _joined(self):
+        if self._arrays is None:
+            length, head_n, head, head_along, tail_n, tail, tail_along = (np.concatenate(x) for x in
+                                                                          zip(*self._parts))
+            self._parts = [(length, head_n, head, head_along, tail_n, tail, tail_along)]
+            self._arrays = (length, np.r_[0, np.cumsum(head_n)], head, head_along, np.r_[0, np.cumsum(tail_n)],
+                            tail, tail_along)
+        return self._arrays
+
+    def length(self, key: LaneKey) -> float:
+        return float(self._joined()[0][self.index[key]])
+
+    def __getitem__(self, key: LaneKey) -> LaneEnds:
+        length, head_at, head, head_along, tail_at, tail, tail_along = self._joined()
+        i = self.index[key]
+        h, t = slice(head_at[i], head_at[i + 1]), slice(tail_at[i], tail_at[i + 1])
+        return LaneEnds(float(length[i]), head[h], head_along[h], tail[t], tail_along[t], False)
+
+
 class LaneLines:
     """Centre lines of a lane graph's lanes, built on first use."""
 
@@ -156,6 +237,35 @@ class LaneLines:
         self.graph = graph
         self.step = step
         self._cache: dict[LaneKey, LaneLine] = {}
+        self._ends = _EndsTable()
+
+    def scan(self, keys):
+        """The lines of ``keys`` (lists of ``LaneLine``, in order), batch by batch, not kept: a region's lines
+        do not fit beside its map (Columbus: 161,781 lanes). Only their ends stay (``ends``); a line asked for
+        later is built again, the same to the bit."""
+        for batch in lane_batches(self.graph, list(dict.fromkeys(keys)), self.step):
+            missing = [k for k in batch if k not in self._cache]
+            built = dict(zip(missing, self._build(missing)))
+            found = [self._cache[k] if k in self._cache else built[k] for k in batch]
+            self._ends.add([built[k] for k in missing if k not in self._ends])  # kept lines are their own ends
+            yield found
+
+    def line(self, key: LaneKey) -> LaneLine:
+        """The lane's line, not kept when it was not (a line asked for once, in the middle of a scan)."""
+        line = self._cache.get(key)
+        return line if line is not None else self._build([key])[0]
+
+    def ends(self, key: LaneKey) -> LaneEnds:
+        """The lane's length and the points of its first and last metres (``LaneEnds``)."""
+        if key in self._ends:
+            return self._ends[key]
+        return LaneEnds.of(self[key])
+
+    def length(self, key: LaneKey) -> float:
+        """The length of the lane's line (m)."""
+        if key in self._ends:
+            return self._ends.length(key)
+        return self[key].length
 
     def __getitem__(self, key: LaneKey) -> LaneLine:
         line = self._cache.get(key)
@@ -174,6 +284,12 @@ class LaneLines:
             self._preload(batch)
 
     def _preload(self, missing: list[LaneKey]) -> None:
+        for line in self._build(missing):
+            self._cache[line.key] = line
+
+    def _build(self, missing: list[LaneKey]) -> list[LaneLine]:
+        if not missing:
+            return []
         found = self.graph.centerlines(missing, self.step)
         lines = [found[k][0] for k in missing]
         counts = np.array([len(p) for p in lines])
@@ -182,7 +298,7 @@ class LaneLines:
         suspect = np.flatnonzero(_may_loop_or_fold(lane, points, len(missing))).tolist()
         for i, line in zip(suspect, lines_without_loops([lines[i] for i in suspect])):
             lines[i] = without_folds(line)
-        if np.any(suspect):
+        if suspect:  # (not np.any: a list [0], the first line alone, is a suspect too)
             counts = np.array([len(p) for p in lines])
             points = np.concatenate(lines)
             lane = np.repeat(np.arange(len(missing)), counts)
@@ -190,10 +306,10 @@ class LaneLines:
         step = np.linalg.norm(np.diff(points[:, :2], axis=0), axis=1)
         along = run_cumsum(np.r_[0.0, np.where(lane[1:] == lane[:-1], step, 0.0)], lane)
         along = np.split(along, np.cumsum(counts)[:-1])
-        for key, line, distance in zip(missing, lines, along):
-            # a line of its own, always a copy: a view (a lane driven with s) would keep the whole batch's points
-            # alive, the copies of the reversed lanes beside them (Columbus: ~90 MB of lines held twice)
-            self._cache[key] = LaneLine(key, np.array(line), distance, self.graph.speed_limit(key))
+        # a line of its own, always a copy: a view (a lane driven with s) would keep the whole batch's points
+        # alive, the copies of the reversed lanes beside them (Columbus: ~90 MB of lines held twice)
+        return [LaneLine(key, np.array(line), distance, self.graph.speed_limit(key))
+                for key, line, distance in zip(missing, lines, along)]
 
 
 def lane_batches(graph: LaneGraph, keys: list[LaneKey], step: float):

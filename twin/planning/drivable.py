@@ -37,7 +37,7 @@ from tavf_mapkit.mesh.exact import run_cumsum
 from tavf_mapkit.mesh.swept_path import wheelbase_curvature
 from twin.control.pid import CARLA_LIMITS, ActuatorLimits
 from twin.map import lanelines
-from twin.map.lanelines import LaneLines, lane_batches
+from twin.map.lanelines import ENDS_HEAD, ENDS_TAIL, LaneEnds, LaneLines
 from twin.planning.buffer import JOIN_GAP, join_cut, join_gap, straight_cut
 from twin.planning.chunks import DEGENERATE_LANE
 from twin.vehicle.params import MODEL_S, VehicleParams
@@ -49,6 +49,8 @@ U_TURN = np.radians(135.0)
 MAX_CUT = 0.5
 WINDOWS = (1.0, 2.0, 4.0, 8.0, 16.0)  # m of arc over which bends are measured
 REACH = 8.0  # m of each lane around a transition that the measure looks at
+# a lane's ends kept for measuring steps (``LaneLines.ends``) cover REACH
+assert ENDS_HEAD >= REACH and ENDS_TAIL >= REACH
 CHAIN = 4  # sub-metre lanes (and one U-turn lane) a transition may pass
 
 
@@ -116,25 +118,31 @@ def _wrap(angle):
 
 def _headings(lines: LaneLines, key: LaneKey) -> tuple[float, float]:
     """Driving heading of the lane's first and last segment."""
-    d = np.diff(lines[key].points[:, :2], axis=0)
-    heading = np.arctan2(d[:, 1], d[:, 0])
-    return float(heading[0]), float(heading[-1])
+    ends = lines.ends(key)
+    return _end_headings(ends.head[:2], ends.tail[-2:])
+
+
+def _end_headings(head: np.ndarray, tail: np.ndarray) -> tuple[float, float]:
+    """Heading of the segment from head[0] to head[1] and of the one from tail[-2] to tail[-1] (plan view)."""
+    first, last = head[1] - head[0], tail[-1] - tail[-2]
+    return float(np.arctan2(first[1], first[0])), float(np.arctan2(last[1], last[0]))
 
 
 def undrivable_lanes(graph: LaneGraph, lines: LaneLines, radius: float | None = None,
                      max_cut: float = MAX_CUT) -> dict[LaneKey, str]:
     """Lanes of at least ``DEGENERATE_LANE`` a car cannot drive in lane, with the reason ("u-turn" or
-    "cuts a bend by X m")."""
+    "cuts a bend by X m"). Every lane's line is measured once, batch by batch (``LaneLines.scan``): a
+    region's lines are not kept, only their ends, which is all the steps between lanes are measured on."""
     radius = min_turn_radius() if radius is None else radius
-    lines.preload(sorted(graph.keys))
-    measured = [k for k in sorted(graph.keys)
-                if lines[k].length >= DEGENERATE_LANE and len(lines[k].points) >= 2]
-    if not measured:
-        return {}
-    cut, turn = [], []
-    # a region's lanes in batches: every lane is measured on its own, so batches give the same numbers
-    for batch in lane_batches(graph, measured, lines.step):
-        points = [lines[k].points[:, :2] for k in batch]
+    measured, cut, turn, heading = [], [], [], {}
+    # every lane is measured on its own, so batches give the same numbers
+    for batch in lines.scan(sorted(graph.keys)):
+        batch = [line for line in batch if line.length >= DEGENERATE_LANE and len(line.points) >= 2]
+        if not batch:
+            continue
+        measured.extend(line.key for line in batch)
+        points = [line.points[:, :2] for line in batch]
+        heading.update((line.key, _end_headings(p[:2], p[-2:])) for line, p in zip(batch, points))
         lane = np.repeat(np.arange(len(batch)), [len(p) for p in points])
         points = np.concatenate(points)
         cut.append(worst_cuts(lane, points, radius, max_cut))
@@ -142,8 +150,9 @@ def undrivable_lanes(graph: LaneGraph, lines: LaneLines, radius: float | None = 
         inside = (lane[1:-1] == lane[:-2]) & (lane[2:] == lane[1:-1])  # consecutive segments of one lane
         turn.append(np.bincount(lane[1:-1][inside], weights=_wrap(np.diff(np.arctan2(d[:, 1], d[:, 0])))[inside],
                                 minlength=len(batch)))
+    if not measured:
+        return {}
     cut, turn = np.concatenate(cut), np.concatenate(turn)
-    heading = {k: _headings(lines, k) for k in measured}
     found = {}
     for k, worst, own in zip(measured, cut, turn):
         u_turn = abs(own) > U_TURN
@@ -176,7 +185,7 @@ def lane_transitions(graph: LaneGraph, lines: LaneLines, undrivable: dict[LaneKe
     radius = min_turn_radius() if radius is None else radius
 
     def usable(k):
-        return k not in undrivable and lines[k].length >= DEGENERATE_LANE
+        return k not in undrivable and lines.length(k) >= DEGENERATE_LANE
 
     result = Transitions()
     candidates: list[tuple[LaneKey, LaneKey]] = []
@@ -194,7 +203,7 @@ def lane_transitions(graph: LaneGraph, lines: LaneLines, undrivable: dict[LaneKe
                             candidates.append((a, b))
                     elif (b, turned) not in seen:
                         u_turn_lane = undrivable.get(b) == "u-turn"
-                        if u_turn_lane or (b not in undrivable and lines[b].length < DEGENERATE_LANE):
+                        if u_turn_lane or (b not in undrivable and lines.length(b) < DEGENERATE_LANE):
                             seen.add((b, turned))
                             ahead.append((b, turned or u_turn_lane))
                         elif b in undrivable and not turned:
@@ -232,16 +241,19 @@ def lane_transitions(graph: LaneGraph, lines: LaneLines, undrivable: dict[LaneKe
 
 def _step_polyline(lines: LaneLines, a: LaneKey, b: LaneKey) -> np.ndarray:
     """The end of lane a and the start of lane b as the path buffer joins them (plan view): the blend's
-    diagonal (``join_cut``) replaces only the straight end of a (``straight_cut``), as in the buffer."""
-    la, lb = lines[a], lines[b]
-    end = la.points[-1, :2]
-    before = la.points[-2, :2] if len(la.points) > 1 else end
+    diagonal (``join_cut``) replaces only the straight end of a (``straight_cut``), as in the buffer. Read
+    from the lanes' ends (``LaneEnds``); the whole line of a when the blend reaches back beyond them."""
+    la, lb = lines.ends(a), lines.ends(b)
+    end = la.tail[-1]
+    before = la.tail[-2] if len(la.tail) > 1 else end
     cut = 0.0
-    if float(np.hypot(*(lb.points[0, :2] - end))) > JOIN_GAP:
-        cut = join_cut(*join_gap(end, math.atan2(end[1] - before[1], end[0] - before[0]), lb.points[0, :2]))
-        cut = straight_cut(la.points[:, :2], la.along, cut)
+    if float(np.hypot(*(lb.head[0] - end))) > JOIN_GAP:
+        cut = join_cut(*join_gap(end, math.atan2(end[1] - before[1], end[0] - before[0]), lb.head[0]))
+        if not la.tail_from(la.length - cut - REACH):
+            la = LaneEnds.of(lines.line(a))
+        cut = straight_cut(la.tail, la.tail_along, cut)
     end = la.length - cut
-    tail = la.points[(la.along >= end - REACH) & (la.along <= end + 1e-9), :2]
+    tail = la.tail[(la.tail_along >= end - REACH) & (la.tail_along <= end + 1e-9)]
     if not len(tail):
-        tail = la.points[:1, :2]
-    return np.concatenate([tail, lb.points[lb.along <= REACH, :2]])
+        tail = la.head[:1]
+    return np.concatenate([tail, lb.head[lb.head_along <= REACH]])

@@ -101,8 +101,8 @@ class RandomRoutes:
                        if k in keep and graph.drives_with_s(k) is not forward)
         if not targets:
             return None
-        end = lines[key].points[-1, :2]
-        return min(targets, key=lambda k: (float(np.hypot(*(lines[k].points[0, :2] - end))), k))
+        end = lines.ends(key).tail[-1]
+        return min(targets, key=lambda k: (float(np.hypot(*(lines.ends(k).head[0] - end))), k))
 
     def _turnarounds(self, keep: set[LaneKey], follow: dict) -> dict[LaneKey, list[LaneKey]]:
         """Dead-end lane -> [where a car turns around (``_turnaround_target``)]."""
@@ -158,7 +158,7 @@ class RandomRoutes:
             keep.difference_update(dropped)
 
     def _length(self, lanes) -> float:
-        return float(sum(self.lines[k].length for k in lanes))
+        return float(sum(self.lines.length(k) for k in lanes))
 
     def _largest_progressing(self, keep, follow, lateral, turnaround) -> frozenset | None:
         """The longest strongly connected set of lanes (follow, lane-change and the given turnaround edges)
@@ -214,7 +214,7 @@ class RandomRoutes:
 
     def start_lane(self, rng: np.random.Generator) -> LaneKey:
         """A lane drawn with probability proportional to its length (so starts spread over the network)."""
-        lengths = np.array([self.lines[k].length for k in self._sorted]) + 1.0
+        lengths = np.array([self.lines.length(k) for k in self._sorted]) + 1.0
         return self._sorted[int(rng.choice(len(self._sorted), p=lengths / lengths.sum()))]
 
     def next_lane(self, key: LaneKey, rng: np.random.Generator,
@@ -224,7 +224,7 @@ class RandomRoutes:
         if follow:
             # a voluntary lane change only into a lane that drives on, never straight back
             lateral = [k for k in self._lateral[key] if k != came_from and self._follow[k]]
-            may_change = lateral and came_from is None and self.lines[key].length >= MIN_LANE_CHANGE_LENGTH
+            may_change = lateral and came_from is None and self.lines.length(key) >= MIN_LANE_CHANGE_LENGTH
             if may_change and rng.random() < self.lane_change_probability:
                 return None, lateral[int(rng.integers(len(lateral)))]
             return None, follow[int(rng.integers(len(follow)))]
