@@ -260,3 +260,17 @@ def test_adaptive_samples_in_small_batches_are_the_same(monkeypatch):
     np.testing.assert_array_equal(batched.s, whole.s)
     assert (batched.max_deviation, batched.discontinuities, batched.unresolved, batched.segments) == (
         whole.max_deviation, whole.discontinuities, whole.unresolved, whole.segments)
+
+
+def test_rows_by_name_equals_a_mask_per_name():
+    """junction_footprints groups lane rows by junction with one sort; the groups are a mask's per junction, in
+    the same order (the polygons are united in that order)."""
+    from tavf_mapkit.mesh.junctions import rows_by_name
+
+    rng = np.random.default_rng(7)
+    names = np.array(rng.choice(["", "10", "9", "1000", "a", "-1"], size=500), dtype=object)
+    groups = list(rows_by_name(names))
+    assert [name for name, _ in groups] == sorted(set(names))
+    for name, rows in groups:
+        np.testing.assert_array_equal(rows, np.flatnonzero(names == name))
+    assert list(rows_by_name(np.array([], dtype=object))) == []

@@ -94,6 +94,14 @@ def _fill_small_holes(geometry, min_area: float):
     return _union(out) if out else shapely.Polygon()
 
 
+def rows_by_name(names: np.ndarray):
+    """(name, its row indices in ascending order) for each distinct name, names sorted: what a mask per name
+    gives, by one stable sort (masks are names x rows: minutes for a city's 20,000 junctions)."""
+    order = np.argsort(names, kind="stable")
+    distinct, starts = np.unique(names[order], return_index=True)
+    return zip(distinct.tolist(), np.split(order, starts[1:]))
+
+
 def junction_footprints(odr, sampling, raised_rows: np.ndarray, uncovered=None) -> dict[str, object]:
     """junction id -> united footprint of its flat connecting lanes, raised lanes cut out (except where they
     were cut away themselves, ``uncovered``: raised lanes standing on another road's driving lane,
@@ -106,16 +114,17 @@ def junction_footprints(odr, sampling, raised_rows: np.ndarray, uncovered=None) 
     junction = junction_of_road[arrays.section_road[arrays.lane_section[rows]]]
     raised = raised_rows[rows]
     out = {}
-    for junction_id in sorted(set(junction) - {""}):
-        mine = junction == junction_id
-        flat = _polygonal(_union(polygons[mine & ~raised]))
+    for junction_id, mine in rows_by_name(junction):
+        if junction_id == "":
+            continue
+        flat = _polygonal(_union(polygons[mine[~raised[mine]]]))
         if flat.is_empty:
             continue
         flat = flat.buffer(CLOSE_SLITS, join_style="mitre").buffer(-CLOSE_SLITS, join_style="mitre")
         if not flat.is_valid:  # GEOS's inward mitre buffer can cross itself at a needle-thin spike
             flat = shapely.make_valid(flat)
-        if np.any(mine & raised):
-            standing = _polygonal(_union(polygons[mine & raised]))
+        if np.any(raised[mine]):
+            standing = _polygonal(_union(polygons[mine[raised[mine]]]))
             if uncovered is not None and not uncovered.is_empty:
                 standing = _polygonal(_overlay(shapely.difference, standing, uncovered))
             flat = _overlay(shapely.difference, flat, standing)
