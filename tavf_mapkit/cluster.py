@@ -16,7 +16,9 @@ Nothing here imports Dask at module level: without ``--workers``/``--scheduler``
   that dies is run again on another one by the scheduler (``distributed.scheduler.allowed-failures``).
 - ``Fanout.with_file(path)`` sends a file's bytes to the cluster once (``Client.scatter``, content-addressed by
   sha256); every task of the returned ``FileFanout`` gets (sha256, bytes) first, and ``worker_cached`` keeps
-  what a worker made of them (a loaded map) for the next task. Workers need no shared filesystem.
+  what a worker made of them (a loaded map) for the next task. Workers need no shared filesystem. Bytes lost
+  with a worker (Dask's memory manager keeps one replica of a broadcast) are sent again and the tasks that
+  needed them rerun.
 """
 
 from __future__ import annotations
@@ -147,13 +149,22 @@ class Fanout:
     def workers(self) -> int:
         return max(1, len(self.client.scheduler_info(n_workers=-1).get("workers", {})))
 
-    def map(self, function: Callable, arguments: Iterable[tuple], window: int | None = None) -> Iterator:
+    def map(self, function: Callable, arguments: Iterable[tuple], window: int | None = None,
+            recover: Callable[[list[tuple]], list[tuple]] | None = None) -> Iterator:
         """``function(*args)`` for every tuple, on the cluster; results in the order of ``arguments``, at most
-        ``window`` tasks in flight (default TASKS_PER_WORKER per worker)."""
+        ``window`` tasks in flight (default TASKS_PER_WORKER per worker).
+
+        ``recover`` is for tasks that read shared data: when the scheduler cancels a task because data it needs
+        was lost with a worker (``FutureCancelledError``; scattered data has no task to make it again, and Dask's
+        memory manager keeps one replica of a broadcast), it gets the unfinished tasks' arguments and returns
+        them with the data placed anew; they are submitted again (at most MAX_RECOVERIES times)."""
+        from distributed.client import FutureCancelledError
+
         window = window or TASKS_PER_WORKER * self.workers
-        pending: deque = deque()
+        pending: deque = deque()  # (future, args)
         arguments = iter(arguments)
         exhausted = False
+        recoveries = 0
         while True:
             while not exhausted and len(pending) < window:
                 try:
@@ -161,16 +172,25 @@ class Fanout:
                 except StopIteration:
                     exhausted = True
                     break
-                pending.append(self.client.submit(function, *args, pure=False))
+                pending.append((self.client.submit(function, *args, pure=False), args))
             if not pending:
                 return
-            future = pending.popleft()
+            future, args = pending[0]
             try:
                 result = future.result()
+            except FutureCancelledError:
+                if recover is None or recoveries >= MAX_RECOVERIES:
+                    _cancel(pending)
+                    raise
+                recoveries += 1
+                unfinished = [a for _, a in pending]
+                _cancel(pending)
+                pending = deque((self.client.submit(function, *a, pure=False), a) for a in recover(unfinished))
+                continue
             except BaseException:
-                for other in pending:
-                    other.cancel()
+                _cancel(pending)
                 raise
+            pending.popleft()
             future.release()
             yield result
 
@@ -181,35 +201,53 @@ class Fanout:
             self._kept.append(self.client.submit(function, *args, workers=[address], allow_other_workers=True,
                                                  pure=False))
 
-    def share(self, data: bytes) -> tuple[str, object]:
+    def share(self, data: bytes, again: bool = False) -> tuple[str, object]:
         """(sha256, future) of bytes placed on the cluster once. On every worker there is now (broadcast): data
         scattered to one worker only would be lost with it, and tasks cannot make it again; a worker that joins
-        later fetches it from another."""
+        later fetches it from another. ``again``: placed anew (the copy there was lost with a worker)."""
         digest = hashlib.sha256(data).hexdigest()
-        if digest not in self._shared:
+        if again or digest not in self._shared:
             self._shared[digest] = self.client.scatter(data, hash=False, broadcast=True)
         return digest, self._shared[digest]
 
     def with_file(self, path: str | Path) -> FileFanout:
-        return FileFanout(self, *self.share(Path(path).read_bytes()), Path(path).name)
+        path = Path(path)
+        return FileFanout(self, *self.share(path.read_bytes()), path.name, reread=path.read_bytes)
 
 
 class FileFanout:
-    """A Fanout whose every task gets a file's (sha256, bytes, name) before its own arguments."""
+    """A Fanout whose every task gets a file's (sha256, bytes, name) before its own arguments; bytes lost with a
+    worker are sent again and the unfinished tasks rerun."""
 
-    def __init__(self, fanout: Fanout, digest: str, future, name: str):
-        self.fanout, self.digest, self.future, self.name = fanout, digest, future, name
+    def __init__(self, fanout: Fanout, digest: str, future, name: str, reread: Callable[[], bytes] | None = None):
+        """``reread`` gives the bytes again when a copy is lost (None: a lost copy fails the map)."""
+        self.fanout, self.digest, self.future, self.name, self.reread = fanout, digest, future, name, reread
 
     @property
     def workers(self) -> int:
         return self.fanout.workers
 
     def map(self, function: Callable, arguments: Iterable[tuple], window: int | None = None) -> Iterator:
+        # a generator: tasks not yet submitted take the future of the latest copy
         return self.fanout.map(function, ((self.digest, self.future, self.name, *args) for args in arguments),
-                               window)
+                               window, recover=None if self.reread is None else self._share_again)
+
+    def _share_again(self, unfinished: list[tuple]) -> list[tuple]:
+        digest, self.future = self.fanout.share(self.reread(), again=True)
+        if digest != self.digest:
+            raise StageError(f"{self.name} changed while the cluster worked on it")
+        return [(args[0], self.future, *args[2:]) for args in unfinished]
 
     def everywhere(self, function: Callable, *args) -> None:
         self.fanout.everywhere(function, self.digest, self.future, self.name, *args)
+
+
+MAX_RECOVERIES = 3  # times a map sends its shared data again after losing it with workers
+
+
+def _cancel(pending: deque) -> None:
+    for future, _ in pending:
+        future.cancel()
 
 
 # -- the worker's side --------------------------------------------------------------------------------------

@@ -173,3 +173,33 @@ def test_waiting_tasks_share_few_quiet_processes():
         profiling = fanout.client.run(lambda: dask.config.get("distributed.worker.profile.enabled"))
         assert set(profiling.values()) == {False}
     assert dask.config.get("distributed.worker.profile.enabled") is True  # this process's config is untouched
+
+
+
+@pytest.mark.slow
+def test_shared_bytes_lost_with_their_only_worker_are_sent_again(tmp_path):
+    """Dask's memory manager keeps one replica of a broadcast; when that worker dies the bytes are gone and the
+    scheduler cancels every task that needs them ("already forgotten": CI's killed-worker build, once). The
+    FileFanout sends the file again and reruns the unfinished tasks."""
+    from tavf_mapkit.cluster import connect, worker_map
+    from tavf_mapkit.opendrive import load_opendrive
+
+    source = shared_path("xodr", "esmini", "multi_intersections.xodr")
+    with loopback_cluster(tmp_path / "cluster", workers=3) as cluster, \
+            connect(scheduler=cluster.address) as fanout:
+        cluster.wait_for_workers(3)
+        shared = fanout.with_file(source)
+        client = fanout.client
+
+        def holders() -> set:
+            return set(client.who_has([shared.future])[shared.future.key])
+
+        assert wait_until(lambda: len(holders()) == 3, 60)
+        client.amm.run_once()  # ReduceReplicas: one copy left
+        assert wait_until(lambda: len(holders()) == 1, 60)
+        (holder,) = holders()
+        pid = client.run(os.getpid, workers=[holder])[holder]
+        os.killpg(os.getpgid(pid), signal.SIGKILL)  # the worker and its nanny
+        assert wait_until(lambda: holder not in client.scheduler_info(n_workers=-1)["workers"], 60)
+        maps = list(shared.map(worker_map, (() for _ in range(4))))
+    assert [len(odr.roads) for odr in maps] == [len(load_opendrive(source).roads)] * 4

@@ -85,8 +85,9 @@ def sweep(map_dir: Path, seeds: str, duration: float, traffic: int, udm: str | N
 
             # a run's task only waits on its `twin drive`: threads of a few quiet processes hold them all
             fanout = stack.enter_context(connect(workers=workers, scheduler=scheduler, waiting_tasks=True))
-            digest, future = fanout.share(pack_build(build.path))
-            runs = FileFanout(fanout, digest, future, build.path.name).map(
+            packed = pack_build(build.path)
+            digest, future = fanout.share(packed)
+            runs = FileFanout(fanout, digest, future, build.path.name, reread=lambda: packed).map(
                 drive_task, ((seed, options, deadline) for seed in seed_list),
                 window=len(seed_list))  # runs are long: all queued, the scheduler balances them
             where = scheduler or f"{workers} local workers ({workers} threads in {local_processes(workers)} processes)"
