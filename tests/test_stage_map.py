@@ -6,6 +6,7 @@ from __future__ import annotations
 import gc
 import os
 import shutil
+import weakref
 
 from tavf_mapkit.pipeline.builtin import stage_map as kept_maps
 from tavf_mapkit.pipeline.config import load_pipeline
@@ -38,10 +39,10 @@ def test_a_small_map_is_loaded_once_per_build_and_file(shared, tmp_path, monkeyp
 def test_the_kept_map_goes_with_its_build(shared, tmp_path):
     xodr = tmp_path / "map.xodr"
     shutil.copy(shared("xodr", "esmini", "fabriksgatan.xodr"), xodr)
-    before = len(kept_maps._kept)
     build = context_of(xodr)
-    kept_maps.stage_map(build)                                    # a build that failed before its check stage
-    assert len(kept_maps._kept) == before + 1
+    gone = weakref.finalize(kept_maps.stage_map(build), lambda: None)  # a build that failed before its check
+    gc.collect()
+    assert gone.alive                                                  # held by its build ...
     del build
     gc.collect()
-    assert len(kept_maps._kept) == before
+    assert not gone.alive                                              # ... and by nothing else

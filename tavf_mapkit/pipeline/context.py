@@ -32,6 +32,8 @@ class BuildContext:
     notify: Callable[[str], None] = lambda message: None
     progress: Progress = silent
     fanout: object | None = None
+    #: (file key, map) the mesh stage kept for the check stage (pipeline/builtin/stage_map.py), or None
+    kept_map: tuple | None = None
 
     def section(self, name: str) -> dict:
         """The pipeline file's table ``[name]`` with command-line overrides applied."""

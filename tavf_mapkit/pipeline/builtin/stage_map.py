@@ -9,14 +9,10 @@ build (its BuildContext) and one file (path, size, change time, inode): a rewrit
 
 from __future__ import annotations
 
-import weakref
-
 from tavf_mapkit.pipeline.context import BuildContext
 
 #: files up to this size are kept loaded between stages (TAVF 11 MB, Krems 3 MB; a region's are hundreds)
 KEEP_BYTES = 32 << 20
-
-_kept: dict[int, tuple[tuple, object]] = {}  # id(context) -> (file key, OpenDriveMap)
 
 
 def _file_key(context: BuildContext) -> tuple:
@@ -27,22 +23,19 @@ def _file_key(context: BuildContext) -> tuple:
 
 def stage_map(context: BuildContext, keep: bool = True):
     """The build's OpenDRIVE map (``context.opendrive()``), the kept one if this build has it for this file;
-    kept for the next stage when ``keep`` and the file is small."""
+    kept on the build's context for the next stage when ``keep`` and the file is small (it goes with the build,
+    failed or not)."""
     key = _file_key(context)
-    kept = _kept.get(id(context))
-    if kept is not None and kept[0] == key:
-        return kept[1]
+    if context.kept_map is not None and context.kept_map[0] == key:
+        return context.kept_map[1]
     odr = context.opendrive()
-    if keep and key[1] <= KEEP_BYTES:
-        if id(context) not in _kept:
-            weakref.finalize(context, _kept.pop, id(context), None)  # gone with the build, failed or not
-        _kept[id(context)] = (key, odr)
+    context.kept_map = (key, odr) if keep and key[1] <= KEEP_BYTES else None
     return odr
 
 
 def take_kept_map(context: BuildContext):
     """The map kept for this build and file, or None; no longer kept afterwards (its last reader has it)."""
-    kept = _kept.pop(id(context), None)
+    kept, context.kept_map = context.kept_map, None
     if kept is None:
         return None
     try:
