@@ -66,7 +66,7 @@ class ReferenceLine:
         raise AttributeError("ReferenceLine is immutable")
 
     def __reduce__(self):
-        return ReferenceLine.from_narrow, (self.narrow, self.side_index, self.side_params, self.lines,
+        return reference_line_from_narrow, (self.narrow, self.side_index, self.side_params, self.lines,
                                            self.extra_xml)
 
     @property
@@ -221,3 +221,9 @@ def gather_side(lines, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     if not index:
         return np.zeros(0, dtype=np.int64), np.zeros((0, 9))
     return np.concatenate(index), np.concatenate(params)
+
+
+def reference_line_from_narrow(narrow, side_index, side_params, lines, extra_xml) -> ReferenceLine:
+    """``ReferenceLine.from_narrow`` as a plain function: what a pickled reference line is made by (a classmethod
+    would pickle as ``getattr``, which a map snapshot's unpickler does not allow; opendrive/snapshot.py)."""
+    return ReferenceLine.from_narrow(narrow, side_index, side_params, lines, extra_xml)

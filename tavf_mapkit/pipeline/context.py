@@ -50,12 +50,13 @@ class BuildContext:
         return float(value)
 
     def opendrive(self):
-        """The build's OpenDRIVE (artifact ``xodr``) loaded; a StageError when it is unreadable."""
+        """The build's OpenDRIVE (artifact ``xodr``) loaded, from its snapshot (artifact ``odrmap``) when that is
+        valid (opendrive/snapshot.py); a StageError when it is unreadable."""
         from tavf_mapkit.errors import InputError, StageError
-        from tavf_mapkit.opendrive import load_opendrive
+        from tavf_mapkit.opendrive.snapshot import load_build_map
 
         try:
-            return load_opendrive(self.artifacts["xodr"])
+            return load_build_map(self.artifacts["xodr"], self.artifacts.get("odrmap"))
         except InputError as error:
             if self.input_kind == "opendrive":
                 raise  # the user's own map: its defect, named as such (exit 2)

@@ -29,14 +29,15 @@ def validate_file(path: str | Path, rules=None, strict: bool = False,
 
 
 def validate_and_load(path: str | Path, rules=None, strict: bool = False, schema_dir: str | Path | None = None,
-                      odr=None):
+                      odr=None, snapshot: str | Path | None = None):
     """``validate_file``, and the map it read: (report, OpenDriveMap or None, the reader's InputError or None).
 
     The structure rules see the document in parts (validate/document.py: a whole lxml tree is about ten times the
-    file), never together with the map: then the file's bytes are let go and the map is loaded (unless given) for
-    the rules that need it. ``structure.readable`` reports the reader's verdict, so it runs after the load.
+    file), never together with the map: then the file's bytes are let go and the map is loaded (unless given; from
+    ``snapshot`` when that is the file's valid snapshot, opendrive/snapshot.py) for the rules that need it. ``structure.readable`` reports the reader's verdict, so it runs after the load.
     """
     from tavf_mapkit.opendrive import load_opendrive
+    from tavf_mapkit.opendrive.snapshot import load_build_map
 
     source = read_xml_source(path)
     context = ValidationContext(str(path), None, None, source.line_offset, schema_dir)
@@ -62,7 +63,9 @@ def validate_and_load(path: str | Path, rules=None, strict: bool = False, schema
     return_freed_memory()  # the document's memory is not reused by the map's objects unless it goes back first
     error = None
     try:
-        context.odr = load_opendrive(path) if odr is None else odr
+        if odr is None:
+            odr = load_opendrive(path) if snapshot is None else load_build_map(path, snapshot)
+        context.odr = odr
     except InputError as reader_error:
         error = context.notes["reader_error"] = reader_error
     for rule in rules:

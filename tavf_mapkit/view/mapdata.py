@@ -334,9 +334,9 @@ def build_map_data(build, odr=None, *, step: float = STEP_M) -> dict:
     """map_data of a build folder (twin.sim.build.Build): its findings (report/validate.json), the opendrive
     stage's repairs (manifest), and the GNSS trace the check stage matched ([check] gnss_trace_path), matched
     again here (the report keeps only its statistics)."""
-    from tavf_mapkit.opendrive import load_opendrive
+    from tavf_mapkit.opendrive.snapshot import load_build_map
 
-    odr = odr if odr is not None else load_opendrive(build.xodr)
+    odr = odr if odr is not None else load_build_map(build.xodr)
     findings = []
     validate = build.path / "report" / "validate.json"
     if validate.is_file():

@@ -40,14 +40,14 @@ class ViewData:
 
 def load_view_data(build_path, run_paths=(), *, basemap: bool = False) -> ViewData:
     """Read a build folder and run folders into a ViewData (InputError on anything unreadable)."""
-    from tavf_mapkit.opendrive import load_opendrive
+    from tavf_mapkit.opendrive.snapshot import load_build_map
     from tavf_mapkit.view.mapdata import build_map_data, display_georeference
     from tavf_mapkit.view.runs import load_run
     from tavf_mapkit.view.scene import scene_data
     from twin.sim.build import Build
 
     build = Build.open(build_path)
-    odr = load_opendrive(build.xodr)
+    odr = load_build_map(build.xodr)
     data = build_map_data(build, odr)
     georef, _ = display_georeference(odr)
     runs = [load_run(path, georef) for path in run_paths]

@@ -35,7 +35,7 @@ class Session:
 
     def __init__(self, config: DriveConfig, hooks: list[SessionHook] | None = None):
         from tavf_mapkit.lanegraph import LaneGraph
-        from tavf_mapkit.opendrive import load_opendrive
+        from tavf_mapkit.opendrive.snapshot import load_build_map
         from twin.session.outputs import output_folder
         from twin.sim.build import Build, georeference_for_driving
 
@@ -49,7 +49,7 @@ class Session:
         self.hooks = list(hooks or [])
         self.build = Build.open(config.map)
         self.build_dir = self.build.path
-        self.odr = load_opendrive(self.build.xodr)
+        self.odr = load_build_map(self.build.xodr)  # from the build's snapshot: a region's map in seconds
         # a region's map is millions of long-lived objects: the cyclic collector would walk them again and
         # again as the lane graph and routes allocate (seconds of a region's start); refcounting still frees
         freeze_long_lived()

@@ -218,9 +218,9 @@ class SumoTraffic:
             demand = generate_demand(files.net, config.seed, config.vehicles, config.pedestrians, work_dir)
         odr = None
         if config.junction_placement:
-            from tavf_mapkit.opendrive import load_opendrive
+            from tavf_mapkit.opendrive.snapshot import load_build_map
 
-            odr = load_opendrive(files.xodr)
+            odr = load_build_map(files.xodr)
         return cls(files.net, frame, config, demand, odr)
 
     # --- life cycle ------------------------------------------------------------------------------------------

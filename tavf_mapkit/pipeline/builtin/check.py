@@ -114,7 +114,8 @@ class CheckStage(Stage):
                 raise StageError(f"the OpenDRIVE is unreadable: {unreadable}") from None
         try:
             # the mesh stage's map when it kept it (a small map, the same file): not loaded a second time
-            report, odr, unreadable = validate_and_load(str(xodr), odr=take_kept_map(context))
+            report, odr, unreadable = validate_and_load(str(xodr), odr=take_kept_map(context),
+                                                        snapshot=context.artifacts.get("odrmap"))
         except InputError as error:  # not even well-formed XML
             raise StageError(f"the OpenDRIVE is unreadable: {error}") from None
         if unreadable is not None:

@@ -29,8 +29,9 @@ class OpenDriveStage(Stage):
     inputs = ("xodr",)
     # 2: an OpenDRIVE input becomes the build's NAME.xodr; 3: netconvert's output repaired; 4: @length set to the
     # arc length, [opendrive] repair; 5: connecting roads meet their lanes, one <controller> per id; 6: curves as
-    # arcs ([opendrive] curves); 7: NAME.xodr is always this stage's (netconvert's file stays in netconvert/)
-    version = "7"
+    # arcs ([opendrive] curves); 7: NAME.xodr is always this stage's (netconvert's file stays in netconvert/);
+    # 8: NAME.odrmap, the snapshot of NAME.xodr as read (opendrive/snapshot.py) for the stages and twins after it
+    version = "8"
     description = "read and check the OpenDRIVE (counts, bounds, georeference plausibility)"
 
     def options(self, context: BuildContext) -> dict:
@@ -54,6 +55,7 @@ class OpenDriveStage(Stage):
             if not repair_enabled(context):
                 more_facts["repair"] = False  # --no-repair: "no repairs" does not mean none were needed
         summary = summarise(odr)
+        del odr  # not held while NAME.xodr is read back for its snapshot
         summary["file"] = files["xodr"]
         path = context.output_path("report/opendrive.json")
         path.write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
@@ -70,7 +72,23 @@ class OpenDriveStage(Stage):
             "bounds_wgs84": {k: round(v, 7) for k, v in (geo.get("bounds_wgs84") or {}).items()},
             **more_facts,
         }
+        files["odrmap"] = _snapshot(context, files["xodr"])
         return StageOutput(files={**files, "opendrive_report": "report/opendrive.json"}, facts=facts)
+
+
+def _snapshot(context: BuildContext, xodr_name: str) -> str:
+    """Read NAME.xodr back as every later reader would and save that as NAME.odrmap: the stages after this one
+    and the twin load a region's map from it in a tenth of the time (opendrive/snapshot.py). The map read is kept
+    for the mesh stage when it is small (stage_map.py)."""
+    from tavf_mapkit.memory import return_freed_memory
+    from tavf_mapkit.opendrive.snapshot import SUFFIX, snapshot_file
+    from tavf_mapkit.pipeline.builtin.stage_map import keep_map
+
+    return_freed_memory()
+    xodr = context.output_path(xodr_name)
+    name = f"{context.name}{SUFFIX}"
+    keep_map(context, xodr, snapshot_file(xodr, context.output_path(name)))
+    return name
 
 
 #: netconvert's output with more dropped roads than this share (and at least MAX_DROPPED_MIN) is not repaired

@@ -2,7 +2,8 @@
 
 Each stage used to load NAME.xodr anew: on DLR's TAVF net (11 MB) a load is about a second, once in the mesh
 stage and once in the check stage. A map whose file is at most ``KEEP_BYTES`` stays loaded from the mesh stage
-to the check stage (the collision stage between them does not read it). A larger one is still loaded by each
+to the check stage (the collision stage between them does not read it); the opendrive stage, which reads the
+file it wrote once to snapshot it, keeps that map for the mesh stage. A larger one is still loaded by each
 stage and let go after it, so a region's map is never held under the next stage's peak. The map is kept for one
 build (its BuildContext) and one file (path, size, change time, inode): a rewritten file is loaded anew.
 """
@@ -15,10 +16,17 @@ from tavf_mapkit.pipeline.context import BuildContext
 KEEP_BYTES = 32 << 20
 
 
-def _file_key(context: BuildContext) -> tuple:
-    path = context.artifacts["xodr"]
+def _file_key(context: BuildContext, path=None) -> tuple:
+    path = context.artifacts["xodr"] if path is None else path
     status = path.stat()
     return str(path), status.st_size, status.st_mtime_ns, status.st_ino
+
+
+def keep_map(context: BuildContext, path, odr) -> None:
+    """Keep ``odr``, the map just read from ``path`` (the build's NAME.xodr), for the next stage that reads it,
+    when the file is small (the opendrive stage reads it once to snapshot it: the mesh stage need not again)."""
+    key = _file_key(context, path)
+    context.kept_map = (key, odr) if key[1] <= KEEP_BYTES else None
 
 
 def stage_map(context: BuildContext, keep: bool = True):
