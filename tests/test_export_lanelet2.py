@@ -369,6 +369,41 @@ def test_names_from_the_file_are_escaped(lanelet2, tmp_path):
     assert signs[0].parameters["refers"][0].attributes["opendrive:signal"] == "stop&go"
 
 
+def test_parts_make_the_same_map(sample_build_dir):
+    """A region is sampled in parts of whole lane sections (lanelet2_export/parts.py: Columbus's 4.25 million
+    lane samples at once would exceed the map's budget of one allocation); the file must not depend on where
+    the parts end."""
+    from tavf_mapkit.lanelet2_export import build_lanelet_map
+    from tavf_mapkit.lanelet2_export.osmxml import osm_text
+    from tavf_mapkit.lanelet2_export.parts import section_runs
+    from tavf_mapkit.mesh.adaptive import adaptive_samples
+
+    odr = load_opendrive(sample_build_dir / "sample.xodr")
+    arrays = odr.arrays
+    samples = adaptive_samples(odr, 0.01)
+    lanes = np.bincount(arrays.lane_section, minlength=len(arrays.section_s0))
+    for part_pairs in (1, 700, 10**9):
+        runs = section_runs(arrays, samples.section, part_pairs)
+        # the runs cover the samples in order, each of whole sections, none much bigger than asked
+        assert runs[0].start == 0 and runs[-1].stop == len(samples.section)
+        assert all(a.stop == b.start for a, b in zip(runs, runs[1:]))
+        assert all(samples.section[r.start - 1] != samples.section[r.start] for r in runs[1:])
+        for run in runs:
+            pairs = lanes[samples.section[run]]
+            last = samples.section[run.stop - 1]
+            assert pairs.sum() < part_pairs + pairs[samples.section[run] == last].sum()
+        assert (len(runs) > 1) == (part_pairs < 10**9)
+    assert len(section_runs(arrays, samples.section, 1)) == len(np.unique(samples.section))
+
+    def text(laneletmap):
+        return osm_text(laneletmap, laneletmap.nodes[:, 0], laneletmap.nodes[:, 1])
+
+    whole = text(build_lanelet_map(odr, part_pairs=10**9))
+    assert text(build_lanelet_map(odr, part_pairs=700)) == whole
+    assert text(build_lanelet_map(odr, step=0.5, part_pairs=10**9)) == text(build_lanelet_map(odr, step=0.5,
+                                                                                              part_pairs=1))
+
+
 def test_cli_errors(tmp_path, lanelet2):
     xodr = tmp_path / "synthetic.xodr"
     xodr.write_text(synthetic_xodr())

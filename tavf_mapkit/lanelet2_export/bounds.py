@@ -63,6 +63,45 @@ def outermost_rows(arrays) -> np.ndarray:
 def sample_borders(odr, sampling, rows: np.ndarray) -> SectionBorders:
     """The inner and outer border of every lane row in ``rows``, on the samples of ``sampling``
     (``sample_lanes_at``: samples grouped by section, ascending s)."""
+    return join_borders([border_part(odr, sampling, rows)], len(odr.arrays.lane_id))
+
+
+@dataclass(frozen=True, eq=False)
+class BorderPart:
+    """``sample_borders`` of one part of the map's samples (whole lane sections): its lane borders' points,
+    its centre lines' points, and per border id its point count and height step (zero outside the part)."""
+
+    lane_points: np.ndarray
+    lane_border: np.ndarray
+    lane_heading: np.ndarray
+    centre_points: np.ndarray
+    centre_border: np.ndarray
+    centre_heading: np.ndarray
+    count: np.ndarray
+    raise_: np.ndarray
+
+
+def join_borders(parts: list[BorderPart], n_lanes: int) -> SectionBorders:
+    """The parts (in map order) as one SectionBorders: every lane border's points, then every centre line's,
+    as ``sample_borders`` of all their samples at once orders them."""
+    count = np.sum([part.count for part in parts], axis=0).astype(np.int64)
+    raise_ = np.max([part.raise_ for part in parts], axis=0)
+    start = np.cumsum(count) - count
+    start[count == 0] = -1
+    heading = np.concatenate([part.lane_heading for part in parts] + [part.centre_heading for part in parts])
+    return SectionBorders(
+        np.concatenate([part.lane_points for part in parts] + [part.centre_points for part in parts]),
+        start,
+        count,
+        raise_,
+        n_lanes,
+        np.concatenate([part.lane_border for part in parts] + [part.centre_border for part in parts]),
+        np.column_stack([np.cos(heading), np.sin(heading)]),
+    )
+
+
+def border_part(odr, sampling, rows: np.ndarray) -> BorderPart:
+    """The borders of lane rows ``rows`` on the samples of ``sampling``, which holds their whole sections."""
     arrays = odr.arrays
     n_lanes, n_sections = len(arrays.lane_id), len(arrays.section_s0)
     rows = np.asarray(rows, dtype=np.int64)
@@ -105,19 +144,13 @@ def sample_borders(odr, sampling, rows: np.ndarray) -> SectionBorders:
     )
 
     count = np.concatenate([per_section[arrays.lane_section] * lane_needed, per_section * centre_needed])
-    count = count.astype(np.int64)
-    start = np.cumsum(count) - count
-    start[count == 0] = -1
-    border = np.concatenate([lane[chosen], n_lanes + sampling.sample_section[centre_samples]])
-    heading = np.concatenate(
-        [sampling.heading[sampling.pair_sample[chosen]], sampling.heading[centre_samples]]
-    )
-    return SectionBorders(
-        np.concatenate([outer_points, centre_points]),
-        start,
-        count,
+    return BorderPart(
+        outer_points,
+        lane[chosen],
+        sampling.heading[sampling.pair_sample[chosen]],
+        centre_points,
+        n_lanes + sampling.sample_section[centre_samples],
+        sampling.heading[centre_samples],
+        count.astype(np.int64),
         raise_,
-        n_lanes,
-        border,
-        np.column_stack([np.cos(heading), np.sin(heading)]),
     )

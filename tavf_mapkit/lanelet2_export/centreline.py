@@ -38,3 +38,14 @@ def centre_lines(sampling, rows: np.ndarray) -> CentreLines:
     # pairs come lane by lane in row order, as ``rows`` does
     count = np.bincount(lane, minlength=len(sampling.arrays.lane_id))[rows].astype(np.int64)
     return CentreLines(points, keep, np.cumsum(count) - count, count)
+
+
+def join_centre_lines(parts: list[CentreLines]) -> CentreLines:
+    """The centre lines of parts of the map's samples (in map order, rows ascending across them) as one."""
+    count = np.concatenate([part.count for part in parts])
+    return CentreLines(
+        np.concatenate([part.points for part in parts]),
+        np.concatenate([part.keep for part in parts]),
+        np.cumsum(count) - count,
+        count,
+    )

@@ -4,7 +4,8 @@ neighbours.
 Steps (vectorised over the map but the per-lane, per-way and per-signal bookkeeping):
 
 1. sample every lane section once, adaptively (no bound further than ``eps`` from the exact border) or every
-   ``step`` metres, and evaluate each needed border there (``bounds.sample_borders``);
+   ``step`` metres, and evaluate each needed border there (``bounds.border_part``), in parts of whole lane sections
+   (``parts``: a region's samples at once would exceed the map's allocation budget);
 2. pick the lanes that get a lanelet (``mapping.lanelet_tags``) and orient each along its driving direction
    (``lanegraph.drives_with_s``: right-hand traffic drives right lanes with s, ``rule="LHT"`` mirrors it, an
    OpenDRIVE 1.8 ``direction="reversed"`` flips it): left bound = the border on the driver's left;
@@ -28,12 +29,13 @@ from tavf_mapkit.lanegraph.graph import lane_speed_limit
 from tavf_mapkit.lanegraph.keys import drives_with_s
 from tavf_mapkit.lanegraph.lanechange import lane_change_allowed, mark_at
 from tavf_mapkit.lanegraph.topology import lane_end_pairs
-from tavf_mapkit.lanelet2_export.bounds import outermost_rows, sample_borders
-from tavf_mapkit.lanelet2_export.centreline import centre_lines
+from tavf_mapkit.lanelet2_export.bounds import border_part, join_borders, outermost_rows
+from tavf_mapkit.lanelet2_export.centreline import centre_lines, join_centre_lines
 from tavf_mapkit.lanelet2_export.folds import cut_folds
 from tavf_mapkit.lanelet2_export.mapping import is_vehicle_lane, lane_change_tags, lanelet_tags, line_tags
 from tavf_mapkit.lanelet2_export.nodes import merge_points
 from tavf_mapkit.lanelet2_export.orientation import give_private_bounds
+from tavf_mapkit.lanelet2_export.parts import PART_PAIRS, sample_in_parts
 from tavf_mapkit.lanelet2_export.regulatory import signal_elements
 from tavf_mapkit.lanelet2_export.untangle import untangle_sections
 from tavf_mapkit.opendrive.surface import surface_frame
@@ -64,8 +66,10 @@ class LaneletMap:
     turned: int = 0  # lanelets Lanelet2 will still read against their lane
 
 
-def build_lanelet_map(odr, eps: float = 0.01, step: float | None = None) -> LaneletMap:
-    from tavf_mapkit.opendrive.sampling import sample_lanes_at, section_samples
+def build_lanelet_map(
+    odr, eps: float = 0.01, step: float | None = None, part_pairs: int = PART_PAIRS
+) -> LaneletMap:
+    from tavf_mapkit.opendrive.sampling import section_samples
 
     arrays = odr.arrays
     max_deviation = None
@@ -76,13 +80,27 @@ def build_lanelet_map(odr, eps: float = 0.01, step: float | None = None) -> Lane
         sample_section, sample_s, max_deviation = samples.section, samples.s, samples.max_deviation
     else:
         sample_section, sample_s = section_samples(arrays, step, include_end=True)
-    sampling = sample_lanes_at(odr, sample_section, sample_s)
     per_section = np.bincount(sample_section, minlength=len(arrays.section_s0))
 
-    # -- which lanes, which way round ---------------------------------------------------------------------
+    # -- which lanes, which way round; their borders, centre lines and middles, part by part (parts.py) ----
     section_first = np.searchsorted(arrays.section_road, np.arange(len(odr.roads)), side="left")
-    rows, tags, forward, keys, narrow = _select_lanes(odr, sampling, per_section, section_first)
-    borders = sample_borders(odr, sampling, rows)
+    selected, border_parts, centre_parts, middles = [], [], [], []
+    for sampling in sample_in_parts(odr, sample_section, sample_s, part_pairs):
+        chosen = _select_lanes(odr, sampling, per_section, section_first)
+        selected.append(chosen)
+        border_parts.append(border_part(odr, sampling, chosen[0]))
+        centre_parts.append(centre_lines(sampling, chosen[0]))
+        middles.append(_middles(sampling, chosen[0], chosen[2], per_section))
+    rows = np.concatenate([part[0] for part in selected])
+    tags = [lane_tags for part in selected for lane_tags in part[1]]
+    forward = np.concatenate([part[2] for part in selected])
+    keys = [key for part in selected for key in part[3]]
+    narrow = sum(part[4] for part in selected)
+    borders = join_borders(border_parts, len(arrays.lane_id))
+    centre = join_centre_lines(centre_parts)
+    heading = np.concatenate([part[0] for part in middles])
+    middle_point = np.concatenate([part[1] for part in middles])
+    del selected, border_parts, centre_parts, middles
     inner = borders.inner(rows, arrays)
     right_side = arrays.lane_id[rows] < 0
     # the +t side is inside for right lanes, outside for left lanes
@@ -97,7 +115,6 @@ def build_lanelet_map(odr, eps: float = 0.01, step: float | None = None) -> Lane
     joins, unjoined = _link_joins(odr, borders, row_of, arrays)
     border_points, border_keep, _ = cut_folds(borders.points, borders.border, borders.tangent)
     untangle_sections(arrays, borders, border_points, border_keep, left, right, forward)
-    centre = centre_lines(sampling, rows)
     elements = signal_elements(odr, lanelet_of)
     parts = [border_points, centre.points]
     offset = len(border_points) + len(centre.points)
@@ -125,12 +142,6 @@ def build_lanelet_map(odr, eps: float = 0.01, step: float | None = None) -> Lane
     laneletmap = LaneletMap(
         positions, way_nodes, way_tags, max_deviation=max_deviation, unjoined=unjoined, narrow=narrow
     )
-    # driving direction at the middle of each lanelet's section (for orientation.give_private_bounds)
-    section_start = np.searchsorted(sampling.sample_section, arrays.lane_section[rows], side="left")
-    middle_sample = section_start + per_section[arrays.lane_section[rows]] // 2
-    heading = sampling.heading[middle_sample] + np.where(forward, 0.0, np.pi)
-    middle_pair = np.searchsorted(sampling.pair_lane, rows) + per_section[arrays.lane_section[rows]] // 2
-    middle_point = _centre_at(sampling, middle_pair)
     centre_runs = _node_runs(centre.start + len(border_points), centre.count, node_of, keep)
     centre_of = dict(enumerate(centre_runs))
     index_of = {}
@@ -198,7 +209,11 @@ def _select_lanes(odr, sampling, per_section: np.ndarray, section_first: np.ndar
     np.maximum.at(width, sampling.pair_lane, np.abs(sampling.t_outer - sampling.t_inner))
     rows, tags, forward, keys = [], [], [], []
     narrow = 0
-    for row in range(len(arrays.lane_id)):
+    # the lanes of the sampled sections (lane rows come section by section)
+    sections = sampling.sample_section
+    first = int(np.searchsorted(arrays.lane_section, sections[0], side="left")) if len(sections) else 0
+    end = int(np.searchsorted(arrays.lane_section, sections[-1], side="right")) if len(sections) else 0
+    for row in range(first, end):
         section_row = int(arrays.lane_section[row])
         if per_section[section_row] < 2:
             continue
@@ -230,6 +245,17 @@ def _select_lanes(odr, sampling, per_section: np.ndarray, section_first: np.ndar
         forward.append(drives_with_s(road, lane))
         keys.append((road_index, k, lane.id))
     return np.array(rows, dtype=np.int64), tags, np.array(forward, dtype=bool), keys, narrow
+
+
+def _middles(sampling, rows: np.ndarray, forward: np.ndarray, per_section: np.ndarray):
+    """(driving direction, (n, 3) lane-centre point) at the middle sample of each lane row's section (for
+    ``orientation.give_private_bounds``)."""
+    arrays = sampling.arrays
+    section_start = np.searchsorted(sampling.sample_section, arrays.lane_section[rows], side="left")
+    middle_sample = section_start + per_section[arrays.lane_section[rows]] // 2
+    heading = sampling.heading[middle_sample] + np.where(forward, 0.0, np.pi)
+    middle_pair = np.searchsorted(sampling.pair_lane, rows) + per_section[arrays.lane_section[rows]] // 2
+    return heading, _centre_at(sampling, middle_pair)
 
 
 def _centre_at(sampling, pairs: np.ndarray) -> np.ndarray:
