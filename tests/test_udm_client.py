@@ -318,3 +318,61 @@ def test_process_client_accounts_for_every_query_when_the_udm_is_unreachable():
     stats = client.stats()
     assert responses and all(r.status == UNREACHABLE and r.attempts == 2 for r in responses)
     assert stats.submitted == 20 == len(responses) + stats.dropped + stats.abandoned
+
+
+def test_one_connection_is_kept_alive_and_a_closed_one_is_reopened_without_an_error():
+    """A raw HTTP server that counts connections and, on request, closes a connection after answering without
+    saying so (as a server's keep-alive timeout does): the client reuses one connection while it stays open and
+    notices the close before the next request, so no query fails or is retried because of it."""
+    import json
+    import threading
+
+    body = json.dumps({"type": "FeatureCollection", "features": []}).encode()
+    answer = (b"HTTP/1.1 200 OK\r\nContent-Type: application/geo+json\r\nContent-Length: "
+              + str(len(body)).encode() + b"\r\n\r\n" + body)
+    listener = socket.create_server(("127.0.0.1", 0))
+    listener.settimeout(5.0)
+    connections, close_after = [], set()
+
+    def serve():
+        while True:
+            try:
+                conn, _ = listener.accept()
+            except OSError:
+                return
+            connections.append(conn)
+            with conn:
+                conn.settimeout(5.0)
+                while True:
+                    try:
+                        request = conn.recv(65536)
+                    except OSError:
+                        break
+                    if not request:
+                        break
+                    conn.sendall(answer)
+                    if len(connections) in close_after:
+                        break  # close without "Connection: close"
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    url = "http://127.0.0.1:%d" % listener.getsockname()[1]
+    try:
+        with UdmClient(url, max_retries=2) as client:
+            for frame in range(4):
+                client.submit(*HAMBURG, frame=frame)
+                assert client.flush(5.0)
+            assert len(connections) == 1  # kept alive
+            close_after.add(1)
+            client.submit(*HAMBURG, frame=4)
+            assert client.flush(5.0)
+            time.sleep(0.1)  # the server's close reaches the client while the connection is idle
+            for frame in range(5, 8):
+                client.submit(*HAMBURG, frame=frame)
+                assert client.flush(5.0)
+            responses = client.poll()
+            stats = client.stats()
+    finally:
+        listener.close()
+    assert [r.status for r in responses] == [OK] * 8 and all(r.attempts == 1 for r in responses)
+    assert stats.retries == 0 and stats.errors == {} and len(connections) == 2

@@ -1,8 +1,8 @@
 """Ask a UDM what lies around the car without ever making the simulation wait for the network.
 
 The simulation thread calls ``submit()`` (puts a query in a bounded queue and returns) and, each frame,
-``poll()`` (takes whatever answers have arrived). A worker thread with its own ``httpx.Client`` does the
-HTTP, retries transient failures with bounded exponential backoff, and turns every failure into a counted
+``poll()`` (takes whatever answers have arrived). A worker thread with its own keep-alive connection
+(``twin.udm.connection``) does the HTTP, retries transient failures with bounded exponential backoff, and turns every failure into a counted
 ``UdmResponse`` with a status instead of an exception: a dead UDM must degrade the twin, not stop it.
 
 Two latencies are kept per query, both from ``time.monotonic``:
@@ -18,6 +18,7 @@ schedstat; on a busy machine that wait, not the network, is most of a loopback r
 from __future__ import annotations
 
 import csv
+import json
 import math
 import threading
 import time
@@ -27,8 +28,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import IO, Any, Self
 
-import httpx
-
+from twin.udm.connection import HttpConnection, TransportError
 from twin.udm.model import InvalidObject, UdmObject, square_around
 
 LATENCY_CSV = "udm_latency.csv"
@@ -44,6 +44,7 @@ MALFORMED = "malformed"  # 200 but not a GeoJSON FeatureCollection of valid obje
 INVALID_FIX = "invalid_fix"  # submit() got a NaN or infinite position; nothing was sent
 INTERNAL = "internal"  # a bug on our side, caught so the worker keeps serving
 RETRYABLE = frozenset({TIMEOUT, UNREACHABLE, NETWORK, HTTP_5XX})
+TRANSPORT_STATUS = {"timeout": TIMEOUT, "unreachable": UNREACHABLE, "network": NETWORK}  # TransportError.kind
 
 
 @dataclass(frozen=True)
@@ -214,13 +215,12 @@ class UdmClient:
 
     # --- the worker's side -------------------------------------------------------------------------------
 
-    def open_http(self) -> httpx.Client:
-        """The HTTP client the worker uses (for callers that fetch synchronously with ``fetch``)."""
-        # trust_env=False: proxy variables must not reroute what is meant to be a direct UDM connection.
-        return httpx.Client(base_url=self.base_url, timeout=self.timeout_s, headers=self._headers,
-                            trust_env=False, follow_redirects=False)
+    def open_http(self) -> HttpConnection:
+        """The connection the worker uses (for callers that fetch synchronously with ``fetch``). It reads no
+        proxy variables: they must not reroute what is meant to be a direct UDM connection."""
+        return HttpConnection(self.base_url, timeout_s=self.timeout_s, headers=self._headers)
 
-    def fetch(self, http: httpx.Client, query: UdmQuery) -> UdmResponse:
+    def fetch(self, http: HttpConnection, query: UdmQuery) -> UdmResponse:
         """One query now, on the calling thread, with retries; counted like the worker's. Never raises."""
         try:
             response = self._fetch(http, query)
@@ -247,7 +247,7 @@ class UdmClient:
                                            error=describe(error))
                 self._finish(response, finished_query=True)
 
-    def _fetch(self, http: httpx.Client, query: UdmQuery) -> UdmResponse:
+    def _fetch(self, http: HttpConnection, query: UdmQuery) -> UdmResponse:
         params = {"bbox": square_around(query.lat, query.lon, query.side_m).as_param(), **self._filters}
         waited = run_queue_wait_s()  # read outside the timed span, so reading it costs the latency nothing
         t_sent = time.monotonic()
@@ -268,19 +268,19 @@ class UdmClient:
         return UdmResponse(query.frame, query.t_publish, t_sent, t_received, status, objects, attempt,
                            http_status, error, server_s, wait_s)
 
-    def _attempt(self, http: httpx.Client, params: dict[str, str]
+    def _attempt(self, http: HttpConnection, params: dict[str, str]
                  ) -> tuple[str, tuple[UdmObject, ...], int | None, str, float | None]:
         try:
-            reply = http.get("objects", params=params)
-        except httpx.HTTPError as error:
-            return transport_status(error), (), None, describe(error), None
-        server_s = server_timing_s(reply.headers.get("server-timing", ""))
+            reply = http.get("objects", params)
+        except TransportError as error:
+            return TRANSPORT_STATUS[error.kind], (), None, str(error)[:200], None
+        server_s = server_timing_s(reply.server_timing)
         if reply.status_code >= 500:
             return HTTP_5XX, (), reply.status_code, reply.text[:200], server_s
         if reply.status_code != 200:
             return HTTP_4XX, (), reply.status_code, reply.text[:200], server_s
         try:
-            return OK, objects_from_collection(reply.json()), 200, "", server_s
+            return OK, objects_from_collection(json.loads(reply.body)), 200, "", server_s
         except (ValueError, InvalidObject) as error:  # JSONDecodeError is a ValueError
             return MALFORMED, (), 200, describe(error), server_s
 
@@ -340,15 +340,6 @@ def run_queue_wait_s() -> float | None:
         return int(_SCHEDSTAT.read_bytes().split()[1]) / 1e9
     except (OSError, IndexError, ValueError):
         return None
-
-
-def transport_status(error: httpx.HTTPError) -> str:
-    """Which error count an httpx failure belongs to."""
-    if isinstance(error, httpx.TimeoutException):
-        return TIMEOUT
-    if isinstance(error, httpx.ConnectError):
-        return UNREACHABLE
-    return NETWORK
 
 
 def describe(error: BaseException) -> str:
