@@ -404,6 +404,61 @@ def test_parts_make_the_same_map(sample_build_dir):
                                                                                               part_pairs=1))
 
 
+def test_file_written_in_blocks(tmp_path, monkeypatch):
+    """Nodes and ways are formatted a block at a time (a region's file is gigabytes): ids and references run
+    on across blocks, so any block size gives the same file."""
+    from tavf_mapkit.lanelet2_export import build_lanelet_map, osmxml
+
+    xodr = tmp_path / "synthetic.xodr"
+    xodr.write_text(synthetic_xodr())
+    laneletmap = build_lanelet_map(load_opendrive(str(xodr)))
+    lon, lat = laneletmap.nodes[:, 0] * 1e-5, laneletmap.nodes[:, 1] * 1e-5
+    whole = osmxml.osm_text(laneletmap, lon, lat, "c")
+    assert len(laneletmap.nodes) > 7 and len(laneletmap.way_nodes) > 7
+    monkeypatch.setattr(osmxml, "_BLOCK", 7)
+    assert len(list(osmxml.osm_chunks(laneletmap, lon, lat, "c"))) > 4
+    assert osmxml.osm_text(laneletmap, lon, lat, "c") == whole
+
+
+def test_runs_of_sections():
+    """untangle's members per suspect section by one stable sort: what a mask per section gives."""
+    from tavf_mapkit.lanelet2_export.untangle import _runs_of
+
+    key = np.random.default_rng(3).integers(-1, 40, 2000)
+    wanted = np.array([0, 3, 17, 39, 45])
+    for value, run in zip(wanted, _runs_of(key, wanted)):
+        assert run.tolist() == np.flatnonzero(key == value).tolist()
+
+
+def test_private_bounds_of_several_lanelets():
+    """Lanelets the loader would turn get bounds of their own through a cross-section; their new nodes are
+    numbered on from the map's, lanelet after lanelet, and joined to the map's nodes once at the end: the
+    bounds as written (final node numbers) pass the loader's test."""
+    from tavf_mapkit.lanelet2_export.laneletmap import LaneletMap
+    from tavf_mapkit.lanelet2_export.orientation import give_private_bounds, turned_lanelets
+
+    # three straight lanes along x, 3 m wide, 10 m apart; each lists its bounds swapped (left on the right)
+    nodes, way_nodes, lanelets = [], [], []
+    for k, forward in enumerate((True, False, True)):
+        y = 10.0 * k
+        for side in (-1.5, 1.5):
+            way_nodes.append(np.arange(len(nodes), len(nodes) + 3))
+            nodes += [[x, y + side, 0.0] for x in (0.0, 5.0, 10.0)]
+        lower, upper = len(way_nodes) - 2, len(way_nodes) - 1
+        # driving +x the left bound is the upper one, driving -x the lower one: list the other
+        lanelets.append({"left": lower if forward else upper, "right": upper if forward else lower,
+                         "forward": forward, "heading": 0.0 if forward else np.pi,
+                         "middle": np.array([5.0, y, 0.0]), "tags": {}, "regulatory": []})
+    laneletmap = LaneletMap(np.array(nodes), way_nodes, [{"type": "virtual"} for _ in way_nodes], lanelets)
+    assert turned_lanelets(laneletmap) == [0, 1, 2]
+    assert give_private_bounds(laneletmap) == (3, 0)
+    assert turned_lanelets(laneletmap) == []
+    assert len(laneletmap.nodes) > len(nodes) and np.array_equal(laneletmap.nodes[:len(nodes)], nodes)
+    used = np.concatenate([laneletmap.way_nodes[ll[side]] for ll in lanelets for side in ("left", "right")])
+    assert set(range(len(nodes), len(laneletmap.nodes))) <= set(used.tolist())  # every new node in a bound
+    assert all(ll["tags"] == {"opendrive:inside_out": "yes"} for ll in lanelets)
+
+
 def test_cli_errors(tmp_path, lanelet2):
     xodr = tmp_path / "synthetic.xodr"
     xodr.write_text(synthetic_xodr())

@@ -20,7 +20,7 @@ import numpy as np
 
 from tavf_mapkit.errors import InputError
 from tavf_mapkit.lanelet2_export.laneletmap import LaneletMap, build_lanelet_map
-from tavf_mapkit.lanelet2_export.osmxml import osm_text
+from tavf_mapkit.lanelet2_export.osmxml import osm_chunks
 
 __all__ = ["LaneletMap", "build_lanelet_map", "export_lanelet2", "map_georeference"]
 
@@ -72,14 +72,14 @@ def export_lanelet2(
         f"lanelet2.projection.LocalCartesianProjector(lanelet2.io.Origin({lat0:.10f}, {lon0:.10f}))) "
         f"or UtmProjector with the same origin. Projection: {georeference.text}"
     )
-    text = osm_text(laneletmap, lon, lat, comment)
+    chunks = osm_chunks(laneletmap, lon, lat, comment)  # written as formatted: a region's file is gigabytes
     if output == "-":
-        sys.stdout.write(text)
+        sys.stdout.writelines(chunks)
     else:
         from tavf_mapkit.fileutil import staged_file
 
-        with staged_file(output) as temporary:
-            temporary.write_text(text, encoding="utf-8")
+        with staged_file(output) as temporary, open(temporary, "w", encoding="utf-8") as handle:
+            handle.writelines(chunks)
     return {
         "lanelets": len(laneletmap.lanelets),
         "ways": len(laneletmap.way_nodes),

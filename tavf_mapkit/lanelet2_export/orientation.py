@@ -129,7 +129,13 @@ def give_private_bounds(laneletmap) -> tuple[int, int]:
 
     from tavf_mapkit.lanelet2_export.nodes import NODE_RADIUS
 
-    tree = cKDTree(laneletmap.nodes)
+    # the corners and the nodes new points fall on are nodes of the map as built; points the lanelets before
+    # added are numbered on from it, and the nodes are joined once at the end (not a copy of every node per
+    # candidate: millions of nodes on a region)
+    original = laneletmap.nodes
+    tree = cKDTree(original)
+    added: list[np.ndarray] = []
+    n_total = len(original)
     fixed = 0
     for i in turned:
         lanelet = laneletmap.lanelets[i]
@@ -139,7 +145,7 @@ def give_private_bounds(laneletmap) -> tuple[int, int]:
         # corners in driving direction (ways run with s)
         a, b = (left[0], left[-1]) if forward else (left[-1], left[0])
         c, d = (right[0], right[-1]) if forward else (right[-1], right[0])
-        nodes = laneletmap.nodes
+        nodes = original
         centre = 0.25 * (nodes[a] + nodes[b] + nodes[c] + nodes[d])
         u = np.array([np.cos(lanelet["heading"]), np.sin(lanelet["heading"])])
         n = np.array([-u[1], u[0]])
@@ -155,20 +161,19 @@ def give_private_bounds(laneletmap) -> tuple[int, int]:
             # a new point on an existing node is that node (no two nodes of the file coincide)
             distance, nearest = tree.query(points)
             new = distance > NODE_RADIUS
-            ids = np.where(new, len(nodes) + np.cumsum(new) - 1, nearest)
+            ids = np.where(new, n_total + np.cumsum(new) - 1, nearest)
             left_ids = np.array([a, *ids[:3], b])
             right_ids = np.array([c, *ids[3:], d])
             if not forward:  # as written the ways run with s: a lanelet against s lists them from its end
                 left_ids, right_ids = left_ids[::-1], right_ids[::-1]
-            everything = np.concatenate([nodes, points[new]])
-            if inverted_bounds(everything[left_ids, :2], everything[right_ids, :2]) == (
-                not forward,
-                not forward,
-            ):
+            fresh = points[new]
+            if inverted_bounds(_positions(original, fresh, n_total, left_ids),
+                               _positions(original, fresh, n_total, right_ids)) == (not forward, not forward):
                 break
         else:
             continue
-        laneletmap.nodes = everything
+        added.append(fresh)
+        n_total += len(fresh)
         # say so in the file: the lane's own geometry is inside out here, and its lane changes are gone
         lanelet["tags"]["opendrive:inside_out"] = "yes"
         for key, line in (("left", left_ids), ("right", right_ids)):
@@ -177,7 +182,16 @@ def give_private_bounds(laneletmap) -> tuple[int, int]:
             laneletmap.way_nodes.append(line)
             lanelet[key] = len(laneletmap.way_nodes) - 1
         fixed += 1
+    laneletmap.nodes = np.concatenate([original, *added])
     return fixed, len(turned) - fixed
+
+
+def _positions(original: np.ndarray, fresh: np.ndarray, first_fresh: int, ids: np.ndarray) -> np.ndarray:
+    """(n, 2) of node ids that are nodes of ``original`` or, from ``first_fresh`` on, points of ``fresh``."""
+    is_fresh = ids >= first_fresh
+    xy = original[np.where(is_fresh, 0, ids), :2]
+    xy[is_fresh] = fresh[ids[is_fresh] - first_fresh, :2]
+    return xy
 
 
 def _cross_section(middle: np.ndarray, u: np.ndarray, n: np.ndarray, offset: float) -> np.ndarray:

@@ -50,8 +50,17 @@ def _fixed(values: np.ndarray, digits: int) -> np.ndarray:
     return _join(sign, whole.astype(_STRING), ".", np.strings.zfill(fraction.astype(_STRING), digits))
 
 
+#: nodes / ways formatted at once: a region's millions of nodes as one list of strings would cost gigabytes
+_BLOCK = 200_000
+
+
 def osm_text(laneletmap, lon: np.ndarray, lat: np.ndarray, comment: str = "") -> str:
     """The whole file as text; ``lon``/``lat`` (degrees) of every node."""
+    return "".join(osm_chunks(laneletmap, lon, lat, comment))
+
+
+def osm_chunks(laneletmap, lon: np.ndarray, lat: np.ndarray, comment: str = ""):
+    """``osm_text`` piece by piece (a block of nodes or ways at a time), to be written as it comes."""
     n_nodes = len(laneletmap.nodes)
     n_ways = len(laneletmap.way_nodes)
     way_base = n_nodes + 1
@@ -65,31 +74,35 @@ def osm_text(laneletmap, lon: np.ndarray, lat: np.ndarray, comment: str = "") ->
             f'  <bounds minlat="{lat.min():.10f}" minlon="{lon.min():.10f}" '
             f'maxlat="{lat.max():.10f}" maxlon="{lon.max():.10f}"/>\n'
         )
-        ids = np.arange(1, n_nodes + 1).astype(str)
-        parts.extend(
+    yield "".join(parts)
+    for first in range(0, n_nodes, _BLOCK):
+        block = slice(first, min(first + _BLOCK, n_nodes))
+        yield "".join(
             _join(
                 '  <node id="',
-                ids,
+                np.arange(block.start + 1, block.stop + 1).astype(str),
                 '" version="1" lat="',
-                _fixed(lat, 10),
+                _fixed(lat[block], 10),
                 '" lon="',
-                _fixed(lon, 10),
+                _fixed(lon[block], 10),
                 '">\n    <tag k="ele" v="',
-                _fixed(laneletmap.nodes[:, 2], 4),
+                _fixed(laneletmap.nodes[block, 2], 4),
                 '"/>\n  </node>\n',
             ).tolist()
         )
-    if n_ways:
-        counts = np.array([len(nodes) for nodes in laneletmap.way_nodes], dtype=np.int64)
-        refs = _join(
-            '    <nd ref="', (np.concatenate(laneletmap.way_nodes) + 1).astype(str), '"/>\n'
-        ).tolist()
+    for first in range(0, n_ways, _BLOCK):
+        ways = laneletmap.way_nodes[first : first + _BLOCK]
+        counts = np.array([len(nodes) for nodes in ways], dtype=np.int64)
+        refs = _join('    <nd ref="', (np.concatenate(ways) + 1).astype(str), '"/>\n').tolist()
         ends = np.cumsum(counts)
-        for w, (start, end) in enumerate(zip(ends - counts, ends)):
+        parts = []
+        for w, (start, end) in enumerate(zip(ends - counts, ends), start=first):
             parts.append(f'  <way id="{way_base + w}" version="1">\n')
             parts.extend(refs[start:end])
             parts.append(_tag_block(tuple(laneletmap.way_tags[w].items())))
             parts.append("  </way>\n")
+        yield "".join(parts)
+    parts = []
     for i, lanelet in enumerate(laneletmap.lanelets):
         parts.append(
             f'  <relation id="{lanelet_base + i}" version="1">\n'
@@ -115,4 +128,4 @@ def osm_text(laneletmap, lon: np.ndarray, lat: np.ndarray, comment: str = "") ->
         parts.append(_tag_block(tuple(element["tags"].items())))
         parts.append("  </relation>\n")
     parts.append("</osm>\n")
-    return "".join(parts)
+    yield "".join(parts)

@@ -50,14 +50,17 @@ def untangle_sections(
     n_lanes = borders.n_lanes
     section_of_border = np.concatenate([arrays.lane_section, np.arange(len(borders.start) - n_lanes)])
     turned = _turned(points, keep, borders, left, right, forward)
-    suspects = set(section_of_border[left[turned]].tolist())
+    suspects = np.unique(section_of_border[left[turned]])
     lanelet_section = section_of_border[left]
+    # each suspect's sampled borders and lanelets (ascending), by one stable sort rather than a mask per
+    # suspect (suspects x borders grows with the square of the map)
+    border_runs = _runs_of(np.where(borders.count > 0, section_of_border, -1), suspects)
+    lanelet_runs = _runs_of(lanelet_section, suspects)
+    turned_in = np.bincount(lanelet_section[turned], minlength=len(section_of_border))
     chosen: dict[int, np.ndarray] = {}
-    for section in sorted(suspects):
-        members = np.flatnonzero((section_of_border == section) & (borders.count > 0))
+    for section, members, lanelets in zip(suspects.tolist(), border_runs, lanelet_runs):
         m = int(borders.count[members[0]])
         index = borders.start[members][:, None] + np.arange(m)[None, :]
-        lanelets = np.flatnonzero(lanelet_section == section)
         cut = (points[index], keep[index])
         raw = borders.points[index]
         # the cut borders turn a lanelet here already: try the others, keep the cut ones as the last resort
@@ -67,7 +70,7 @@ def untangle_sections(
                 samples = np.zeros(m, dtype=bool)
                 samples[[0, j, m - 1]] = True
                 candidates.append(samples)
-        best, best_count = None, int(np.count_nonzero(lanelet_section[turned] == section))
+        best, best_count = None, int(turned_in[section])
         for candidate in candidates:
             points[index], keep[index] = raw, candidate[None, :]
             count = len(_turned(points, keep, borders, left[lanelets], right[lanelets], forward[lanelets]))
@@ -81,6 +84,15 @@ def untangle_sections(
             points[index], keep[index] = raw, best[None, :]
             chosen[int(section)] = best
     return chosen
+
+
+def _runs_of(key: np.ndarray, wanted: np.ndarray) -> list[np.ndarray]:
+    """For each value of ``wanted`` (ascending), the indices i with key[i] == value, ascending."""
+    order = np.argsort(key, kind="stable")
+    ordered = key[order]
+    lo = np.searchsorted(ordered, wanted, side="left")
+    hi = np.searchsorted(ordered, wanted, side="right")
+    return [order[a:b] for a, b in zip(lo.tolist(), hi.tolist())]
 
 
 def _turned(points, keep, borders, left, right, forward) -> np.ndarray:
