@@ -52,7 +52,8 @@ class Sampler:
 
     def __init__(self, pid: int, interval_s: float = 0.25) -> None:
         self.pid, self.interval_s = pid, interval_s
-        self.samples: list[tuple[float, float, float, float, int]] = []  # t, server cpu, server wait, busy, runnable
+        # t, server cpu, server wait, server preempted (involuntary context switches), busy, runnable
+        self.samples: list[tuple[float, float, float, int, float, int]] = []
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
 
@@ -70,15 +71,17 @@ class Sampler:
             if self._stop.wait(self.interval_s):
                 return
 
-    def server(self) -> tuple[float, float]:
-        cpu = wait = 0
+    def server(self) -> tuple[float, float, int]:
+        cpu = wait = preempted = 0
         for task in Path(f"/proc/{self.pid}/task").iterdir():
             try:
                 fields = (task / "schedstat").read_text().split()
+                status = (task / "status").read_text()
             except OSError:  # a thread that just ended
                 continue
             cpu, wait = cpu + int(fields[0]), wait + int(fields[1])
-        return cpu / 1e9, wait / 1e9
+            preempted += int(status.split("nonvoluntary_ctxt_switches:")[1].split()[0])
+        return cpu / 1e9, wait / 1e9, preempted
 
     def between(self, start: float, end: float) -> dict | None:
         """Server CPU and wait seconds, machine busy cores and mean runnable tasks from ``start`` to ``end``."""
@@ -88,8 +91,8 @@ class Sampler:
         first, last = inside[0], inside[-1]
         span = last[0] - first[0]
         return {"s": span, "server_cpu_s": last[1] - first[1], "server_wait_s": last[2] - first[2],
-                "busy_cores": (last[3] - first[3]) / span,
-                "runnable": float(np.mean([sample[4] for sample in inside]))}
+                "server_preempted": last[3] - first[3], "busy_cores": (last[4] - first[4]) / span,
+                "runnable": float(np.mean([sample[5] for sample in inside]))}
 
 
 def machine() -> tuple[float, int]:
@@ -155,6 +158,7 @@ def sweep(build: Path, url: str, twins: int, duration: float, out: Path, server_
         window["requests"] = served
         window["server_cpu_ms_per_request"] = 1000 * window["server_cpu_s"] / max(1, served)
         window["server_wait_ms_per_request"] = 1000 * window["server_wait_s"] / max(1, served)
+        window["server_preempted_per_request"] = window["server_preempted"] / max(1, served)
     return {"twins": twins, "wall_s": wall, "queries": len(values), "parts": parts, "window": window,
             "p50_ms": float(np.percentile(values, 50)), "p95_ms": float(np.percentile(values, 95)),
             "p99_ms": float(np.percentile(values, 99)),
@@ -185,7 +189,8 @@ def print_breakdown(alone: dict, fleet: dict) -> None:
         if not window:
             continue
         print(f"{row['twins']:>3} twin(s), {window['s']:.0f} s: server process {window['server_cpu_ms_per_request']:.2f} ms "
-              f"CPU and {window['server_wait_ms_per_request']:.2f} ms waiting for a core per request "
+              f"CPU, {window['server_wait_ms_per_request']:.2f} ms waiting for a core and "
+              f"{window['server_preempted_per_request']:.2f} preemptions per request "
               f"({window['requests']} requests); machine {window['busy_cores']:.2f} of {os.cpu_count()} cores busy, "
               f"{window['runnable']:.1f} tasks runnable on average")
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -116,3 +117,18 @@ def test_a_local_cluster_logs_only_at_the_commands_verbosity(perth, tmp_path, ve
     assert ("INFO distributed.scheduler" in done.stderr) is chatty, done.stderr
     if not chatty:
         assert done.stderr == ""
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_getscheduler"), reason="scheduling policies are Linux's")
+def test_runs_are_started_as_batch_work_and_the_caller_keeps_its_policy():
+    """A sweep's drives run under SCHED_BATCH (their steps never preempt a UDM request when they wake); the
+    thread that starts them goes back to its own policy."""
+    from twin.sweep.runs import batch_policy
+
+    before = os.sched_getscheduler(0)
+    ask = [sys.executable, "-c", "import os; print(os.sched_getscheduler(0))"]
+    with batch_policy():
+        inside = subprocess.run(ask, capture_output=True, text=True, check=True, timeout=60).stdout.strip()
+    outside = subprocess.run(ask, capture_output=True, text=True, check=True, timeout=60).stdout.strip()
+    assert int(inside) == os.SCHED_BATCH
+    assert os.sched_getscheduler(0) == before == int(outside)

@@ -6,7 +6,10 @@ import asyncio
 import csv
 import itertools
 import math
+import os
 import socket
+import subprocess
+import sys
 import time
 
 import pytest
@@ -376,3 +379,24 @@ def test_one_connection_is_kept_alive_and_a_closed_one_is_reopened_without_an_er
         listener.close()
     assert [r.status for r in responses] == [OK] * 8 and all(r.attempts == 1 for r in responses)
     assert stats.retries == 0 and stats.errors == {} and len(connections) == 2
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_getscheduler"), reason="scheduling policies are Linux's")
+def test_process_client_leaves_the_batch_policy_a_sweep_starts_drives_with(udm):
+    """`twin sweep` starts drives under SCHED_BATCH; the UDM client's process must not keep it, or every answer
+    would wait for the simulations of the other twins to finish their slices."""
+    from twin.sweep.runs import batch_policy
+    from twin.udm.process_client import UdmProcessClient
+
+    url, _ = udm
+    with batch_policy():
+        client = UdmProcessClient(url, timeout_s=1.0)
+        helper = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    try:
+        assert os.sched_getscheduler(helper.pid) == os.SCHED_BATCH  # what every child of the drive inherits
+        assert os.sched_getscheduler(client._child.process.pid) == os.SCHED_OTHER
+        assert client.submit(*HAMBURG, frame=1) and client.flush(5.0) and client.poll()[0].ok
+    finally:
+        helper.kill()
+        helper.wait(5)
+        client.close()

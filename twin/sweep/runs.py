@@ -9,6 +9,7 @@ share it and no shared filesystem is needed.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import io
 import os
@@ -19,6 +20,7 @@ import sys
 import tarfile
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 from tavf_mapkit.errors import InputError
@@ -39,8 +41,9 @@ def drive_once(build: str | Path, seed: int, options: DriveOptions, deadline: fl
         out = Path(scratch) / "run"
         command += ["-o", str(out), *options.arguments(seed)]
         started = time.perf_counter()
-        process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                                   stdin=subprocess.DEVNULL, start_new_session=True)
+        with batch_policy():
+            process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                                       stdin=subprocess.DEVNULL, start_new_session=True)
         try:
             _, stderr = process.communicate(timeout=deadline)
             status = "ok" if process.returncode == 0 else "failed"
@@ -61,6 +64,29 @@ def drive_once(build: str | Path, seed: int, options: DriveOptions, deadline: fl
         error = lines[-1][:300] if lines else f"exit {process.returncode}"
     return {"seed": int(seed), "exit": process.returncode, "status": status, "wall_s": round(wall, 3),
             "files": files, "error": error}
+
+
+@contextlib.contextmanager
+def batch_policy() -> Iterator[None]:
+    """Processes started inside run under SCHED_BATCH (Linux; elsewhere nothing changes): the calling thread
+    takes the policy for the moment of the fork and the child inherits it.
+
+    Why: a sweep puts many drives on few cores, and their simulation steps are throughput work -- a paced drive
+    sleeps most of every step, an unpaced one only wants the most steps per second. A batch thread never
+    preempts another when it wakes, so with a fleet against a UDM (``--udm``) a woken simulation step does not
+    interrupt a UDM request in flight: the UDM client's process sets itself back to the normal policy
+    (twin.udm.process_client), as does the UDM server, which runs outside the sweep. The policy changes when
+    a step runs, never what it computes."""
+    try:
+        before = os.sched_getscheduler(0), os.sched_getparam(0)
+        os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
+    except (AttributeError, OSError):  # not Linux, or not allowed here: run with the policy we have
+        yield
+        return
+    try:
+        yield
+    finally:
+        os.sched_setscheduler(0, *before)
 
 
 def _kill_group(process: subprocess.Popen) -> None:

@@ -14,6 +14,7 @@ of the machine, so latencies measured in the child and publish times taken in th
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections import deque
 from typing import Any, Self
@@ -113,6 +114,7 @@ def _serve(settings: dict[str, Any], parent: Parent) -> None:
     pipe is drained into a bounded queue that keeps the newest ``queue_size`` (the oldest are dropped,
     as in ``UdmClient``).
     """
+    normal_policy()
     options = dict(settings["options"])
     queue_size = max(1, int(options.pop("queue_size", 8)))
     client = UdmClient(settings["base_url"], start_worker=False, **options)
@@ -151,6 +153,17 @@ def _serve(settings: dict[str, Any], parent: Parent) -> None:
                     parent.send("flushed", True)
         finally:
             client.count("abandoned", len(pending))
+
+
+def normal_policy() -> None:
+    """Leave SCHED_BATCH if the drive was started under it (``twin sweep`` does, twin.sweep.runs.batch_policy):
+    the simulation may wait for a core, the UDM request must not. A batch thread that wakes never preempts the
+    running one, it waits for that one's slice to end -- and this process wakes for every answer."""
+    try:
+        if os.sched_getscheduler(0) == os.SCHED_BATCH:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except (AttributeError, OSError):  # not Linux, or not allowed: keep the inherited policy
+        pass
 
 
 if __name__ == "__main__":
