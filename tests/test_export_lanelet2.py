@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 import re
 import time
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -115,17 +116,21 @@ class Lanelet2View:
         self.rules = traffic_rules.create(traffic_rules.Locations.Germany, traffic_rules.Participants.Vehicle)
         self.graph = lanelet2.routing.RoutingGraph(self.map, self.rules)
 
-    def to_local(self, xyz: np.ndarray) -> np.ndarray:
-        """Lanelet2's LocalCartesian (x, y) -> WGS84 -> our local (x, y), vectorised (PROJ's topocentric
-        conversion is GeographicLib's LocalCartesian, to nanometres)."""
+    @cached_property
+    def _to_wgs84(self):
+        """PROJ's topocentric conversion is GeographicLib's LocalCartesian, to nanometres (made once: a
+        transformer costs milliseconds, a region has 160,000 lanelets)."""
         import pyproj
 
         lat0, lon0 = self.origin
-        pipeline = pyproj.Transformer.from_pipeline(
+        return pyproj.Transformer.from_pipeline(
             "+proj=pipeline +step +proj=axisswap +order=2,1 +step +proj=unitconvert +xy_in=deg +xy_out=rad "
             f"+step +proj=cart +ellps=WGS84 +step +proj=topocentric +ellps=WGS84 +lat_0={lat0!r} +lon_0={lon0!r} "
             "+h_0=0")
-        lat, lon, _ = pipeline.transform(xyz[:, 0], xyz[:, 1], xyz[:, 2], direction="INVERSE")
+
+    def to_local(self, xyz: np.ndarray) -> np.ndarray:
+        """Lanelet2's LocalCartesian (x, y) -> WGS84 -> our local (x, y), vectorised."""
+        lat, lon, _ = self._to_wgs84.transform(xyz[:, 0], xyz[:, 1], xyz[:, 2], direction="INVERSE")
         x, y = self.georeference.wgs84_to_local(lon, lat)
         return np.column_stack([x, y])
 
@@ -185,27 +190,33 @@ def check_against_lanelet2(view: Lanelet2View, starts: int = 6) -> dict:
     import shapely
 
     from tavf_mapkit.lanelet2_export.folds import backward_segments
+    from tavf_mapkit.lanelet2_export.parts import sample_in_parts
     from tavf_mapkit.mesh.adaptive import adaptive_samples
-    from tavf_mapkit.opendrive.sampling import sample_lanes_at
 
     fine = adaptive_samples(odr, 0.002)
-    sampling = sample_lanes_at(odr, fine.section, fine.s)
-    centre = sampling.center_points(with_height=False)[:, :2]
-    heading = sampling.heading[sampling.pair_sample]
-    backward = backward_segments(centre, np.column_stack([np.cos(heading), np.sin(heading)]),
-                                 sampling.pair_lane[1:] == sampling.pair_lane[:-1], 1e-3)
-    folded = set(sampling.pair_lane[:-1][backward].tolist())
-    runs = np.searchsorted(sampling.pair_lane, np.arange(len(odr.arrays.lane_id) + 1))  # pairs lane by lane
-    to_ours, to_theirs = [], []
-    for key, ll in view.by_key.items():
-        row = ours.row(key) if key in ours else None
-        if row is None:
-            continue
-        our_line = centre[runs[row]:runs[row + 1]]
-        their_line = view.to_local(np.array([[p.x, p.y, p.z] for p in ll.centerline]))
-        to_ours.append(shapely.distance(shapely.points(their_line), shapely.LineString(our_line)))
-        if row not in folded:
-            to_theirs.append(shapely.distance(shapely.points(our_line), shapely.LineString(their_line)))
+    lanelet_of_row = {ours.row(key): ll for key, ll in view.by_key.items() if key in ours}
+    folded = set()
+    to_ours, to_theirs, compared = [], [], 0
+    # in parts of whole lane sections, as the export samples (a region's lanes at once exceed the map's budget)
+    for sampling in sample_in_parts(odr, fine.section, fine.s):
+        centre = sampling.center_points(with_height=False)[:, :2]
+        heading = sampling.heading[sampling.pair_sample]
+        backward = backward_segments(centre, np.column_stack([np.cos(heading), np.sin(heading)]),
+                                     sampling.pair_lane[1:] == sampling.pair_lane[:-1], 1e-3)
+        folded_here = set(sampling.pair_lane[:-1][backward].tolist())
+        folded |= folded_here
+        rows, starts = np.unique(sampling.pair_lane, return_index=True)  # pairs come lane by lane
+        for row, start, end in zip(rows.tolist(), starts.tolist(), np.append(starts[1:], len(centre)).tolist()):
+            ll = lanelet_of_row.get(row)
+            if ll is None:
+                continue
+            our_line = centre[start:end]
+            compared += 1
+            their_line = view.to_local(np.array([[p.x, p.y, p.z] for p in ll.centerline]))
+            to_ours.append(shapely.distance(shapely.points(their_line), shapely.LineString(our_line)))
+            if row not in folded_here:
+                to_theirs.append(shapely.distance(shapely.points(our_line), shapely.LineString(their_line)))
+    assert compared == len(lanelet_of_row)
     to_ours, to_theirs = np.concatenate(to_ours), np.concatenate(to_theirs)
     assert to_ours.max() < CENTRE_TOLERANCE and to_theirs.max() < CENTRE_TOLERANCE
     # (d) neighbours in a lane section share one bound way; no two nodes within 1 mm
@@ -221,7 +232,8 @@ def check_against_lanelet2(view: Lanelet2View, starts: int = 6) -> dict:
             shared += 1
     from scipy.spatial import cKDTree
 
-    points = np.array([[p.x, p.y, p.z] for p in view.map.pointLayer])
+    layer = view.map.pointLayer
+    points = np.fromiter((c for p in layer for c in (p.x, p.y, p.z)), float, 3 * len(layer)).reshape(-1, 3)
     assert len(cKDTree(points).query_pairs(1e-3)) == 0
     return {"centre_max": float(max(to_ours.max(), to_theirs.max())),
             "centre_p99": float(np.percentile(np.concatenate([to_ours, to_theirs]), 99)),
