@@ -20,7 +20,7 @@ import hashlib
 import logging
 import pickle
 import sys
-from dataclasses import fields, replace
+from dataclasses import fields, is_dataclass, replace
 from functools import lru_cache
 from pathlib import Path
 
@@ -47,7 +47,7 @@ _MODEL = {
                                       "SignalReference"},
     "tavf_mapkit.opendrive.refline": {"reference_line_from_narrow"},
     "tavf_mapkit.opendrive.road": {"Road", "RoadLink", "RoadType", "ShapeRecord"},
-    "tavf_mapkit.opendrive.snapshot": {"_slotted"},
+    "tavf_mapkit.opendrive.snapshot": {"_made"},
 }
 #: numpy's own array and dtype constructors, under their numpy 2 and numpy 1 module names
 _NUMPY = {("numpy", "dtype"), ("numpy", "ndarray"), ("numpy._core.numeric", "_frombuffer"),
@@ -96,27 +96,29 @@ def snapshot_file(xodr: str | Path, path: str | Path | None = None) -> OpenDrive
     return odr
 
 
-def _slot_fields(cls) -> tuple[str, ...] | None:
-    """The fields of a slotted model dataclass (lanes, marks, links: most of a map's objects), else None."""
+def _model_fields(cls) -> tuple[str, ...] | None:
+    """The fields of a model dataclass (roads, sections, lanes, marks, links: a map's objects), else None."""
     try:
-        return _SLOT_FIELDS[cls]
+        return _MODEL_FIELDS[cls]
     except KeyError:
         names = None
-        if "__slots__" in vars(cls) and cls.__name__ in _MODEL.get(cls.__module__, ()):
+        if is_dataclass(cls) and cls.__name__ in _MODEL.get(cls.__module__, ()):
             names = tuple(field.name for field in fields(cls))
-        _SLOT_FIELDS[cls] = names
+        _MODEL_FIELDS[cls] = names
         return names
 
 
-_SLOT_FIELDS: dict[type, tuple[str, ...] | None] = {}
+_MODEL_FIELDS: dict[type, tuple[str, ...] | None] = {}
 
 
-def _slotted(cls, values: tuple):
-    """A slotted model object from its field values. Pickle's own way for slotted dataclasses (their generated
-    ``__setstate__``) asks ``dataclasses.fields`` again for every object: 5 of 9 s of a Maribor snapshot's load."""
-    names = _slot_fields(cls)
+def _made(cls, values: tuple):
+    """A model object from its field values, as its constructor leaves it. Pickle's own way costs more twice:
+    slotted dataclasses' generated ``__setstate__`` asks ``dataclasses.fields`` again for every object (5 of 9 s
+    of a Maribor snapshot's load), and setting a state through ``__dict__`` gives every road and lane section a
+    dict of its own instead of the compact attribute storage its constructor gives (Maribor +28 % memory)."""
+    names = _model_fields(cls)
     if names is None or len(values) != len(names):
-        raise pickle.UnpicklingError(f"{cls.__name__} is not a slotted model class of {len(values)} fields")
+        raise pickle.UnpicklingError(f"{getattr(cls, '__name__', cls)!s} is not a model class of {len(values)} fields")
     made = object.__new__(cls)
     for name, value in zip(names, values):
         object.__setattr__(made, name, value)
@@ -125,10 +127,11 @@ def _slotted(cls, values: tuple):
 
 class _ModelPickler(pickle.Pickler):
     def reducer_override(self, obj):
-        names = _slot_fields(type(obj))
+        """Model objects by their fields only: what a cache (``cached_property``) added is not saved."""
+        names = _model_fields(type(obj))
         if names is None:
             return NotImplemented
-        return _slotted, (type(obj), tuple([getattr(obj, name) for name in names]))
+        return _made, (type(obj), tuple([getattr(obj, name) for name in names]))
 
 
 class _ModelUnpickler(pickle.Unpickler):
