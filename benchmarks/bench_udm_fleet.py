@@ -43,6 +43,7 @@ SHARED = Path(os.environ.get("TAVF_SHARED_DATA", REPO.parent / "shared" / "data"
 PERTH = SHARED / "zoo" / "osm" / "AU_perth_peanut_roundabout_LHT.osm.gz"
 BIN = Path(sys.executable).parent
 TARGET = 1.2
+BURST_S = 0.005  # a request sent this soon after another twin's counts as arriving with it
 
 
 class Sampler:
@@ -151,6 +152,7 @@ def sweep(build: Path, url: str, twins: int, duration: float, out: Path, server_
                          ("rest", np.asarray(rest_ms))):
         part = series[inside] if twins > 1 else series  # a lone twin: its whole run
         parts[name] = percentiles([value for value in part if np.isfinite(value)])
+    crowding = bursts(np.asarray(all_sent), sent, values, inside) if twins > 1 else None
     window = sampler.between(start, end) if twins > 1 else sampler.between(spans[0][0], spans[0][1])
     if window:
         served = sum(1 for t in all_sent if (start if twins > 1 else spans[0][0]) <= t
@@ -163,10 +165,26 @@ def sweep(build: Path, url: str, twins: int, duration: float, out: Path, server_
             "p50_ms": float(np.percentile(values, 50)), "p95_ms": float(np.percentile(values, 95)),
             "p99_ms": float(np.percentile(values, 99)),
             "all_driving_s": max(0.0, end - start), "all_driving_queries": len(steady),
-            "all_driving_p95_ms": float(np.percentile(steady, 95)) if len(steady) else None,
+            "all_driving_p95_ms": float(np.percentile(steady, 95)) if len(steady) else None, "bursts": crowding,
             "overlap": sum(run["wall_s"] for run in runs) / wall,
             "ok": report["summary"]["ok"], "errors": sum(run["udm_errors"] or 0 for run in runs),
             "rtf": [run["real_time_factor"] for run in runs]}
+
+
+def bursts(every_sent: np.ndarray, sent: np.ndarray, latency: np.ndarray, inside: np.ndarray) -> dict | None:
+    """Do the twins' queries arrive together? For the requests sent while all drive: the share sent within
+    BURST_S after another twin's request, and the p95 latency of those and of the others. The twins start
+    their drives as their maps finish loading, so their query times are phased at random: if that share were
+    high, requests would queue behind one another in the server."""
+    ordered = np.sort(every_sent)
+    earlier = np.searchsorted(ordered, sent[inside], side="left") - np.searchsorted(
+        ordered, sent[inside] - BURST_S, side="left")
+    crowded = earlier > 0
+    if not len(crowded):
+        return None
+    return {"window_ms": BURST_S * 1000, "share": float(crowded.mean()),
+            "crowded_p95_ms": float(np.percentile(latency[inside][crowded], 95)) if crowded.any() else None,
+            "alone_p95_ms": float(np.percentile(latency[inside][~crowded], 95)) if (~crowded).any() else None}
 
 
 def print_breakdown(alone: dict, fleet: dict) -> None:
@@ -184,6 +202,11 @@ def print_breakdown(alone: dict, fleet: dict) -> None:
     for name, label in labels.items():
         print(f"{label:<58} {cell(alone, name)}  {cell(fleet, name)}")
     print(f"{'(percentiles of each part taken alone: the parts do not add up)':<58}")
+    crowding = fleet.get("bursts")
+    if crowding:
+        print(f"{fleet['twins']} twins: {100 * crowding['share']:.0f} % of the requests were sent within "
+              f"{crowding['window_ms']:.0f} ms after another twin's (p95 {crowding['crowded_p95_ms'] or float('nan'):.2f} ms; "
+              f"the others {crowding['alone_p95_ms'] or float('nan'):.2f} ms)")
     for row in (alone, fleet):
         window = row["window"]
         if not window:

@@ -328,3 +328,14 @@ def test_serve_command_reports_a_missing_seed_folder_in_one_line(tmp_path):
                              str(tmp_path / "nope")], capture_output=True, text=True, timeout=30, check=False)
     assert result.returncode == 2
     assert result.stderr.strip().count("\n") == 0 and "does not exist" in result.stderr
+
+
+def test_the_server_trusts_no_forwarded_headers():
+    """uvicorn's proxy-header middleware would rewrite a request's client from X-Forwarded-For (for loopback
+    peers) at a cost on every query; the UDM uses no client address, so it is left out."""
+    from twin.udm.server import uvicorn_server
+
+    server = uvicorn_server(create_app(SqliteRtreeStore(), "token"))
+    server.config.load()
+    assert server.config.proxy_headers is False
+    assert "ProxyHeadersMiddleware" not in repr(server.config.loaded_app)

@@ -511,8 +511,10 @@ def url_of(sock: socket.socket) -> str:
 
 
 def uvicorn_server(app: Any, *, log_level: str = "warning", graceful_s: float = 2.0) -> uvicorn.Server:
-    # Access logs off: at fleet query rates the log line costs about as much as the query itself.
-    config = uvicorn.Config(app, log_level=log_level, access_log=False, lifespan="on",
+    # Access logs off: at fleet query rates the log line costs about as much as the query itself. No proxy
+    # headers: nothing here uses the client's address, and uvicorn's middleware for them walked every request's
+    # headers (~0.1 ms of the server's ~0.7 ms CPU per query).
+    config = uvicorn.Config(app, log_level=log_level, access_log=False, lifespan="on", proxy_headers=False,
                             timeout_graceful_shutdown=graceful_s)
     return uvicorn.Server(config)
 
