@@ -8,7 +8,9 @@ overhead, and an Amdahl projection for 16 and 64 workers from measured task time
 1. ``mapkit build MAP`` once, in one process (``--json``: seconds per stage). Its OpenDRIVE and OSM copy then
    feed the tile stages (load the map, mesh, collision world) three times: in this process without Dask, on a
    LocalCluster of 1 worker and of 2 workers (processes, 1 thread each; the cluster's start-up is not counted,
-   every worker loads the map it is sent as a real build's would). The three results must be byte-identical.
+   the workers get the client's loaded map pickled, as a real build's do). The three results must be
+   byte-identical. CPU seconds of each process are printed too (the client's include the LocalCluster's
+   scheduler): on a shared machine they say more than the wall clock.
 2. Per-task overhead: 400 empty tasks through ``cluster.Fanout.map`` on 2 workers.
 3. ``twin sweep`` of ``--runs`` seeds on the sweep map (default the zoo's Perth roundabout): one after another
    without Dask, then ``--workers 2`` (LocalCluster start-up included: a user pays it).
@@ -60,29 +62,38 @@ def folder_digest(folder: Path) -> str:
     return digest.hexdigest()
 
 
+def cpu_seconds() -> float:
+    """User + system CPU seconds of this process so far."""
+    import resource
+
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
+
+
 def tile_stages(build: Path, out: Path, fanout=None) -> dict:
-    """Load the build's map, mesh it and make the collision world into ``out``; seconds of each."""
+    """Load the build's map, mesh it and make the collision world into ``out``; seconds of each, and CPU
+    seconds of this process and of each worker."""
     from tavf_mapkit.mesh.folder import write_mesh_folder
     from tavf_mapkit.opendrive import load_opendrive
     from tavf_mapkit.world.build import build_collision_world_from_tiles
 
     xodr = next(build.glob("*.xodr"))
     osm = build / "source" / f"{build.name}.osm"
+    workers_before = {} if fanout is None else fanout.client.run(cpu_seconds)
+    cpu_before = cpu_seconds()
     started = time.perf_counter()
-    mapped = None
-    if fanout is not None:  # as the mesh stage does: the workers load the map while this process does
-        from tavf_mapkit.mesh.remote import preload
-
-        mapped = fanout.with_file(xodr)
-        preload(mapped)
-    odr = load_opendrive(xodr)
+    odr = load_opendrive(xodr)  # the workers get this map, pickled, once the mesher has cut its units
     loaded = time.perf_counter()
-    write_mesh_folder(odr, out / "mesh", osm_path=osm if osm.is_file() else None, fanout=mapped)
+    write_mesh_folder(odr, out / "mesh", osm_path=osm if osm.is_file() else None, fanout=fanout)
     meshed = time.perf_counter()
     build_collision_world_from_tiles(out / "mesh" / "labelled", out, fanout=fanout)
     done = time.perf_counter()
+    client_cpu = cpu_seconds() - cpu_before
+    workers_after = {} if fanout is None else fanout.client.run(cpu_seconds)
     return {"load_s": loaded - started, "mesh_s": meshed - loaded, "collision_s": done - meshed,
-            "total_s": done - started, "digest": folder_digest(out)}
+            "total_s": done - started, "client_cpu_s": client_cpu,
+            "workers_cpu_s": [workers_after[w] - workers_before[w] for w in sorted(workers_after)],
+            "digest": folder_digest(out)}
 
 
 # the functions whose work a cluster runs as tasks, by the kind of task that does it: a batch of roads, the
@@ -166,8 +177,8 @@ def sweep(build: Path, runs: int, out: Path, workers: int | None) -> float:
 def amdahl(serial: dict, kinds: dict, in_process: dict, task_overhead: float, workers: list[int]) -> dict:
     """The parallel part: each kind of task's work as it took in one process (``in_process``: seconds of the
     passes, and of the collision stage), its longest task scaled by the same in-process / worker ratio. The
-    workers' loading of the map (``preload_task``) runs while the client loads its own copy, which the serial
-    part already holds."""
+    workers' unpickling of the client's map (``preload_task``, ``mesh.remote.share_map``) runs while the client
+    plans the first batches; it is left out."""
     preload = kinds.get("preload_task", {"work_s": 0.0, "tasks": 0})
     kinds = {name: dict(kind, worker_s=kind["work_s"]) for name, kind in kinds.items() if name != "preload_task"}
     for name, kind in kinds.items():
@@ -184,7 +195,7 @@ def amdahl(serial: dict, kinds: dict, in_process: dict, task_overhead: float, wo
     serial_parts["mesh + collision in the client (map load, units, buildings, writing files)"] = max(0.0,
                                                                                                       tile - work)
     serial_parts["process start-up and manifest"] = max(0.0, total - sum(stages.values()))
-    serial_parts[f"(workers load the map meanwhile: {preload['work_s']:.1f} s in all)"] = 0.0
+    serial_parts[f"(workers unpickle the map meanwhile: {preload['work_s']:.1f} s in all)"] = 0.0
     total_serial = total - work
     serial_s = total_serial
     out = {"serial_s": serial_s, "parallel_s": work, "tasks": tasks, "serial_parts": serial_parts,
@@ -226,11 +237,13 @@ def main() -> int:
             two = on_cluster(2, lambda fanout, client: tile_stages(build, scratch / "t2", fanout))
             same = local["digest"] == one[0]["digest"] == two["digest"]
             figures["tile_stages"] = {"no_dask": local, "workers_1": one[0], "workers_2": two, "identical": same}
-            print("\ntile stages (load + mesh + collision)      total    load    mesh  collision  speed-up")
+            print("\ntile stages (load + mesh + collision)      total    load    mesh  collision  speed-up"
+                  "   CPU s: client  workers")
             for label, t in (("this process, no Dask", local), ("LocalCluster, 1 worker", one[0]),
                              ("LocalCluster, 2 workers", two)):
                 print(f"  {label:<40} {t['total_s']:6.1f}  {t['load_s']:6.1f}  {t['mesh_s']:6.1f}  "
-                      f"{t['collision_s']:8.1f}  {local['total_s'] / t['total_s']:6.2f}x")
+                      f"{t['collision_s']:8.1f}  {local['total_s'] / t['total_s']:6.2f}x  "
+                      f"{t['client_cpu_s']:13.1f}  {' + '.join(f'{w:.1f}' for w in t['workers_cpu_s']) or '-'}")
             print(f"  2 workers vs 1 worker: {one[0]['total_s'] / two['total_s']:.2f}x (target {TARGET_SPEEDUP}x); "
                   f"files identical in all three: {same}")
 

@@ -20,8 +20,8 @@ def write_mesh_folder(odr, folder: str | Path, eps: float = DEFAULT_EPS, fmt: st
                       progress: Progress | None = None, fanout=None) -> dict:
     """Mesh the map and write ``folder`` (tiles/, labelled/, mesh.json, preview.png); return mesh.json's content.
     ``batch_work``: metres of lane meshed at once (memory grows with it; the files do not depend on it).
-    ``progress``: told of each pass's units done (``tavf_mapkit.progress``). ``fanout``: a ``cluster.FileFanout``
-    of the map's OpenDRIVE file, to mesh on a Dask cluster (``mesh.remote``; the same files)."""
+    ``progress``: told of each pass's units done (``tavf_mapkit.progress``). ``fanout``: a ``cluster.Fanout``, to
+    mesh on a Dask cluster (``mesh.remote``; the same files)."""
     extra = {}
     if odr.georeference is not None:
         from dataclasses import asdict

@@ -5,19 +5,23 @@
 - pass 2, junction clusters' curbs: a task gets the spilled surface tiles around its clusters;
 - pass 4, the final tiles: a task gets the spill tiles its squares take pieces from and sends back the tile file,
   the labelled tile and its paint on the preview (cropped masks, merged by ``PreviewCanvas.add_painted``).
-Pass 3 (buildings) stays in the client: how far a building's ground search reaches is known only while it runs.
+Pass 3 (buildings) stays in the client, while the workers make the curbs: how far a building's ground search
+reaches is known only while it runs.
 
-Each task gets the map as (sha256, bytes) from ``cluster.FileFanout`` and loads it once per worker
-(``cluster.worker_map``). The client adds what the tasks send back in the order the single process makes it, so
-the spill, the tallies and therefore every file are the same; batches and groups are smaller than one process
-would take (several tasks per worker), which the mesher's results do not depend on.
+Each task gets the client's loaded map and mesh units, pickled, as (sha256, bytes) from ``cluster.FileFanout``
+(``share_map``), and unpickles them once per worker (``cluster.worker_object``). The client adds what the tasks
+send back in the order the single process makes it, so the spill, the tallies and therefore every file are the
+same; batches and groups are smaller than one process would take (several tasks per worker), which the mesher's
+results do not depend on.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
-from tavf_mapkit.cluster import batches_for, worker_cached, worker_map
+from tavf_mapkit.cluster import batches_for, worker_cached, worker_object
 from tavf_mapkit.mesh.spill import MemoryStore
 from tavf_mapkit.tilegrid import TileGrid
 
@@ -27,16 +31,17 @@ TILES_PER_TASK = 64    # squares of the final grid a task writes at most (its me
 
 
 def _map_and_units(digest: str, data: bytes, name: str):
-    from tavf_mapkit.mesh.units import mesh_units
-
-    odr = worker_map(digest, data, name)
-    return odr, worker_cached(("mesh units", digest), lambda: mesh_units(odr))
+    """(map, mesh units) the client sent (``share_map``), unpickled once per worker."""
+    return worker_object(digest, data, name)
 
 
-def preload(fanout) -> None:
-    """Every worker loads the map (and its mesh units) now, while the client loads its own copy and plans the
-    batches: on a cluster that load is hidden behind the client's instead of following it."""
-    fanout.everywhere(_preload_task)
+def share_map(fanout, odr, units):
+    """A ``cluster.FileFanout`` whose tasks get the client's loaded map and its mesh units, pickled (both made
+    once, here: a worker unpickles them in about a tenth of the time it would take to read the OpenDRIVE and
+    cut the units again, and while the client still plans the batches)."""
+    mapped = fanout.with_object((odr, units), "the loaded map")
+    mapped.everywhere(_preload_task)
+    return mapped
 
 
 def _preload_task(digest, data, name) -> None:
@@ -85,8 +90,11 @@ def _batch_task(digest, data, name, roads, eps, tile_size, solids, exports):
 
 # -- pass 2 ------------------------------------------------------------------------------------------------------
 
-def junction_curbs(fanout, surface, stores: dict, tally, report) -> None:
-    """Pass 2 on the cluster: groups of junction clusters in the single process's order."""
+def junction_curbs(fanout, surface, stores: dict, tally, report) -> Callable[[], None]:
+    """Pass 2 on the cluster, started: groups of junction clusters, whose first tasks run while the client goes
+    on (it places the buildings, pass 3, which reads the same surface and not the curbs). The returned function
+    waits for the rest and adds the curbs in the single process's order; pieces are merged by key, so what the
+    stores hold does not depend on whether buildings or curbs came first."""
     from tavf_mapkit.mesh.solid_junction_curbs import CONTEXT_REACH
     from tavf_mapkit.mesh.tiled import CLUSTER_GROUP, clusters_in_order
 
@@ -100,13 +108,18 @@ def junction_curbs(fanout, surface, stores: dict, tally, report) -> None:
             yield (group, boxes, _surface_blobs(surface, boxes.values(), CONTEXT_REACH),
                    surface.low, surface.high, surface.reach, surface.size)
 
-    done = 0
     report(0, len(clusters))
-    for group, (records, part) in zip(groups, fanout.map(_curb_task, arguments())):
-        _replay(stores, records)
-        tally.absorb(part)
-        done += len(group)
-        report(done, len(clusters))
+    results = fanout.map(_curb_task, arguments())  # submits the first tasks now
+
+    def finish() -> None:
+        done = 0
+        for group, (records, part) in zip(groups, results):
+            _replay(stores, records)
+            tally.absorb(part)
+            done += len(group)
+            report(done, len(clusters))
+
+    return finish
 
 
 def _surface_blobs(surface, boxes, reach: float) -> dict:

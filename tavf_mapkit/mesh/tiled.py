@@ -45,6 +45,7 @@ LABELLED = "labelled"
 TILE_CACHE = 256          # spilled tiles kept merged in memory while curbs and buildings look around ...
 TILE_CACHE_BYTES = 64 << 20  # ... and at most this many bytes of them per cache: a city's freeway interchanges
                              # make tiles of megabytes, and 256 of them in each of the five caches held GBs
+ROUNDING_MARGIN = 1e-3  # m: far above the rounding of a centroid's tile (1e-9 m at 5,000 km from the origin)
 CLUSTER_GROUP = 64        # junction clusters whose surroundings are sampled together
 CURBS, JUNCTION_CURBS, OBJECTS, SIGNALS, BUILDINGS = range(5)  # producers, in the order of the scene solids
 
@@ -108,8 +109,8 @@ def write_tiled_mesh(odr, folder: str | Path, eps: float, fmt: str = "glb", tile
     staging folder, a temporary folder): the tile files are written straight into it.
     ``origin``: the origin to use instead of the middle of the meshes' bounds (e.g. another stage's).
     ``progress`` hears of each pass: roads meshed, junction clusters curbed, building groups placed, tiles
-    written. ``fanout``: a ``cluster.FileFanout`` of this map's OpenDRIVE file, to run the batches, the junction
-    clusters' curbs and the tiles as Dask tasks (``mesh.remote``; the files come out the same)."""
+    written. ``fanout``: a ``cluster.Fanout``, to run the batches, the junction clusters' curbs and the tiles as
+    Dask tasks (``mesh.remote``, which sends the workers this map and its units; the files come out the same)."""
     from tavf_mapkit.mesh.units import mesh_units
 
     check_export_options(fmt, tile_size)
@@ -129,6 +130,8 @@ def write_tiled_mesh(odr, folder: str | Path, eps: float, fmt: str = "glb", tile
     try:
         if fanout is not None:
             from tavf_mapkit.mesh import remote
+
+            fanout = remote.share_map(fanout, odr, units)
         roads_done, report = 0, reporter(progress, "roads")
         if fanout is None:
             for batch in units.batches(spill_grid, batch_work):
@@ -144,9 +147,12 @@ def write_tiled_mesh(odr, folder: str | Path, eps: float, fmt: str = "glb", tile
             surface = _SurfaceTiles(stores["surface"], spill_grid, tally.reach)
             if fanout is None:
                 _junction_curbs(odr, units, surface, stores, tally, reporter(progress, "junction clusters"))
-            else:
-                remote.junction_curbs(fanout, surface, stores, tally, reporter(progress, "junction clusters"))
-            _buildings(odr, units, osm_path, surface, stores, tally, reporter(progress, "building groups"))
+                _buildings(odr, units, osm_path, surface, stores, tally, reporter(progress, "building groups"))
+            else:  # the workers make the curbs while this process places the buildings
+                curbs = remote.junction_curbs(fanout, surface, stores, tally,
+                                              reporter(progress, "junction clusters"))
+                _buildings(odr, units, osm_path, surface, stores, tally, reporter(progress, "building groups"))
+                curbs()
             del surface  # its merged tiles are not held under the final grid's own (pass 4)
         origin = origin_of_bounds(tally.low, tally.high) if origin is None else tuple(float(v) for v in origin)
         grid = TileGrid(origin, float(tile_size))
@@ -617,9 +623,12 @@ class _Regrid:
         self.cache = _TileCache()
         self.sources: dict = {}  # final tile -> spill tiles that may hold pieces of it
         for key in store.keys():
-            # the final tiles the spill tile's square reaches into; one tile more on each side for rounding
-            low, high = grid.tiles_touching(spill_grid.tile_bounds(key))
-            low, high = low - 1, high + 1
+            # the final tiles the spill tile's square reaches into. A piece is in a spill tile by its centroid
+            # (a solid: its box's centre), the same number that puts it in a final tile, and tile_of_points is
+            # monotone: it lies in the square up to rounding, so ROUNDING_MARGIN past its edges suffices. (A
+            # whole tile more on each side made every final tile read 16 spill tiles instead of 4: a Dask task
+            # of 64 final tiles merged twice the spill tiles it needs, and took the empty ring around the map.)
+            low, high = grid.tiles_touching(spill_grid.tile_bounds(key), ROUNDING_MARGIN)
             for i in range(int(low[0]), int(high[0]) + 1):
                 for j in range(int(low[1]), int(high[1]) + 1):
                     self.sources.setdefault((i, j), []).append(key)

@@ -36,20 +36,12 @@ class MeshStage(Stage):
         from tavf_mapkit.pipeline.builtin.stage_map import stage_map
 
         options = self.options(context)
-        # on a Dask cluster the tasks get the map's bytes (no shared filesystem); every worker starts loading it
-        # while this process loads its own copy
-        fanout = None
-        if context.fanout is not None:
-            from tavf_mapkit.mesh.remote import preload
-
-            fanout = context.fanout.with_file(context.artifacts["xodr"])
-            preload(fanout)
         odr = stage_map(context)  # kept for the check stage when small (stage_map.py)
         osm_path = context.osm_source()
         folder = context.output_path("mesh/mesh.json").parent
         summary = write_mesh_folder(odr, folder, options["eps"], options["format"], options["tile"],
                                     osm_path=osm_path, solids=options["solids"], progress=context.progress,
-                                    fanout=fanout)
+                                    fanout=context.fanout)  # tasks get this map, pickled (mesh.remote)
         shutil.copyfile(folder / "preview.png", context.output_path("report/mesh_preview.png"))
         triangles = summary["triangles"]
         context.note(f"mesh: {triangles['lanes'] + triangles['junctions']} surface + {triangles['marks']} mark"
