@@ -359,7 +359,7 @@ def test_one_connection_is_kept_alive_and_a_closed_one_is_reopened_without_an_er
 
     thread = threading.Thread(target=serve, daemon=True)
     thread.start()
-    url = "http://127.0.0.1:%d" % listener.getsockname()[1]
+    url = f"http://127.0.0.1:{listener.getsockname()[1]}"
     try:
         with UdmClient(url, max_retries=2) as client:
             for frame in range(4):
