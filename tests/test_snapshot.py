@@ -125,3 +125,31 @@ def test_a_snapshot_of_other_code_is_not_used(shared, tmp_path):
     data[len(_MAGIC)] ^= 0xFF  # another model's source, numpy or Python
     snapshot_path(xodr).write_bytes(bytes(data))
     assert load_snapshot(snapshot_path(xodr), xodr) is None
+
+
+def test_rows_shared_by_the_reader_stay_shared(shared, tmp_path):
+    xodr = tmp_path / "town.xodr"
+    shutil.copyfile(shared("zoo", "xodr", "carla_Town04.xodr"), xodr)
+    snapshot_file(xodr)
+
+    def bases(odr) -> int:
+        return len({id(road.reference_line.narrow.base) for road in odr.roads if len(road.reference_line)})
+
+    read, loaded = load_opendrive(xodr), load_snapshot(snapshot_path(xodr), xodr)
+    assert bases(read) == bases(loaded) < len(read.roads) / 10
+
+
+class _PartOutside:
+    def __reduce__(self):
+        from tavf_mapkit.opendrive.snapshot import _part
+
+        return _part, (np.zeros(3), 2, (5,))
+
+
+def test_an_array_part_outside_its_array_is_refused(shared, tmp_path, caplog):
+    xodr = tmp_path / "town.xodr"
+    shutil.copyfile(shared("zoo", "xodr", "carla_Town04.xodr"), xodr)
+    snapshot_path(xodr).write_bytes(_MAGIC + code_key() + file_key(xodr) + pickle.dumps(_PartOutside()))
+    with caplog.at_level(logging.WARNING, logger="tavf_mapkit.opendrive.snapshot"):
+        assert load_snapshot(snapshot_path(xodr), xodr) is None
+    assert "an array part [2, 7) outside its 3 elements" in caplog.text

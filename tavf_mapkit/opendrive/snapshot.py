@@ -47,7 +47,7 @@ _MODEL = {
                                       "SignalReference"},
     "tavf_mapkit.opendrive.refline": {"reference_line_from_narrow"},
     "tavf_mapkit.opendrive.road": {"Road", "RoadLink", "RoadType", "ShapeRecord"},
-    "tavf_mapkit.opendrive.snapshot": {"_made"},
+    "tavf_mapkit.opendrive.snapshot": {"_made", "_part"},
 }
 #: numpy's own array and dtype constructors, under their numpy 2 and numpy 1 module names
 _NUMPY = {("numpy", "dtype"), ("numpy", "ndarray"), ("numpy._core.numeric", "_frombuffer"),
@@ -125,13 +125,42 @@ def _made(cls, values: tuple):
     return made
 
 
+def _part(base: np.ndarray, start: int, shape: tuple):
+    """A read-only view of ``shape`` into ``base`` from element ``start`` on (``_ModelPickler.reducer_override``)."""
+    if not isinstance(base, np.ndarray) or not base.flags.c_contiguous:
+        raise pickle.UnpicklingError("an array part needs a contiguous array to be part of")
+    count = int(np.prod(shape, dtype=np.int64))
+    if not 0 <= start <= start + count <= base.size:
+        raise pickle.UnpicklingError(f"an array part [{start}, {start + count}) outside its {base.size} elements")
+    part = base.reshape(-1)[start:start + count].reshape(shape)
+    part.flags.writeable = False
+    return part
+
+
 class _ModelPickler(pickle.Pickler):
     def reducer_override(self, obj):
-        """Model objects by their fields only: what a cache (``cached_property``) added is not saved."""
+        """Model objects by their fields only: what a cache (``cached_property``) added is not saved. An array
+        that is a part of a larger one (the reader keeps the reference lines' rows of many roads in one array,
+        refline.RowPacker) is saved as that part, and the larger array once: a road's rows as arrays of their own
+        cost Maribor's map 60 MB more."""
+        if type(obj) is np.ndarray:
+            return _array_part(obj)
         names = _model_fields(type(obj))
         if names is None:
             return NotImplemented
         return _made, (type(obj), tuple([getattr(obj, name) for name in names]))
+
+
+def _array_part(array: np.ndarray):
+    base = array.base
+    if (type(base) is not np.ndarray or base.dtype != array.dtype or base.base is not None
+            or not base.flags.c_contiguous or not array.flags.c_contiguous):
+        return NotImplemented
+    offset = array.ctypes.data - base.ctypes.data
+    start, rest = divmod(offset, array.itemsize)
+    if rest or not 0 <= start <= start + array.size <= base.size:
+        return NotImplemented
+    return _part, (base, start, array.shape)
 
 
 class _ModelUnpickler(pickle.Unpickler):
