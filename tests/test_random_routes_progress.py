@@ -447,3 +447,52 @@ def test_a_join_blended_from_beyond_a_lanes_kept_end_reads_the_whole_line(monkey
         assert len(read) == reads and _lines_kept(lines) == 0
         assert np.array_equal(step, _step_polyline(whole, a, b))
         assert len(lines.ends(a).tail) < len(whole[a].points) and lines.ends(a).length > 4 * REACH
+
+
+def test_steps_whose_lanes_meet_are_made_at_once_as_one_by_one(berlin_build):
+    """Route selection makes the polylines of the steps whose lanes meet all at once from the lanes' kept ends
+    (``twin.planning.steps``; Maribor has 29,364 steps): each is ``_step_polyline``'s, to the bit, and the
+    heading of every lane's first and last segment is ``_headings``'."""
+    from twin.planning import steps
+    from twin.planning.drivable import _headings, _step_polyline
+
+    graph = LaneGraph.from_opendrive(load_opendrive(Build.open(berlin_build).xodr))
+    lines = LaneLines(graph)
+    undrivable = undrivable_lanes(graph, lines)  # scans every lane: the ends table holds them all
+    ends = lines.ends_arrays()
+    pairs = sorted({(a, b) for a in graph.keys for b in graph.successors(a)})
+    a = np.array([ends.index[p] for p, _ in pairs])
+    b = np.array([ends.index[q] for _, q in pairs])
+    joined, owner, points = steps.joined_steps(ends, a, b)
+    assert 0 < joined.sum() <= len(pairs) and np.all(np.diff(owner) >= 0)
+    made = {int(k): points[owner == k] for k in np.unique(owner)}
+    assert sorted(made) == np.flatnonzero(joined).tolist()
+    for k, step in made.items():
+        assert np.array_equal(step, _step_polyline(lines, *pairs[k])), pairs[k]
+    first, last = steps.end_headings(ends)
+    for key, i in ends.index.items():
+        if lines.length(key) > 0:
+            assert (float(first[i]), float(last[i])) == _headings(lines, key), key
+    assert len(undrivable) < len(graph)
+
+
+def test_curvature_over_several_windows_is_each_windows_and_each_lines_own(berlin_build):
+    """Route selection measures bends over five windows on the same lines: the arc lengths, headings and
+    search tables are made once for all windows (``wheelbase_curvatures``). Each window's curvatures are
+    those of every line measured alone over that window, to the bit."""
+    from tavf_mapkit.mesh.swept_path import wheelbase_curvature, wheelbase_curvatures
+    from twin.planning.drivable import WINDOWS
+
+    graph = LaneGraph.from_opendrive(load_opendrive(Build.open(berlin_build).xodr))
+    lines = [line for batch in LaneLines(graph).scan(sorted(graph.keys)) for line in batch if len(line.points) > 1]
+    points = [line.points[:, :2] for line in lines]
+    points[3] = np.repeat(points[3], 2, axis=0)  # repeated points take their predecessor's curvature
+    lane = np.repeat(np.arange(len(points)), [len(p) for p in points])
+    together = wheelbase_curvatures(lane, np.concatenate(points), WINDOWS)
+    assert len(together) == len(WINDOWS)
+    bounds = np.cumsum([0] + [len(p) for p in points])
+    for window, curvature in zip(WINDOWS, together):
+        for k in range(0, len(points), 7):
+            alone = wheelbase_curvature(np.zeros(len(points[k]), dtype=np.int64), points[k], window)
+            assert np.array_equal(curvature[bounds[k]:bounds[k + 1]], alone), (window, k)
+    assert not np.array_equal(together[0], together[-1]) and together[-1].max() > 0  # windows differ

@@ -16,7 +16,7 @@ import manifold3d
 import numpy as np
 import shapely
 
-from tavf_mapkit.mesh.exact import run_cumsum, run_interp
+from tavf_mapkit.mesh.exact import RunTable, run_cumsum
 from tavf_mapkit.mesh.kinds import LANE_TYPE_KIND
 from tavf_mapkit.opendrive.sampling import sample_lanes_at, section_samples
 
@@ -46,46 +46,59 @@ def wheelbase_curvature(lane: np.ndarray, points: np.ndarray, window: float = DE
     point (cut at the run's ends), over that length. A car smooths a kink over its own length, so a kink
     counts by its angle over a wheelbase, not as the infinite curvature of a corner. Each run is measured on
     its own, to the bit: a run's curvatures never depend on the runs around it."""
+    return wheelbase_curvatures(lane, points, (window,))[0]
+
+
+def wheelbase_curvatures(lane: np.ndarray, points: np.ndarray, windows) -> list[np.ndarray]:
+    """``wheelbase_curvature`` over each of ``windows``, the same bits: arc lengths, headings and the search
+    tables of the polylines are made once for all windows (route selection measures five on every bend of a
+    region)."""
     n = len(points)
     step = np.hypot(*np.diff(points, axis=0).T) if n > 1 else np.zeros(0)
     # a repeated point has no heading: it takes the curvature of the point before
     repeat = np.r_[False, (lane[1:] == lane[:-1]) & (step <= 1e-9)]
     keep = np.flatnonzero(~repeat)
     lane, points = lane[keep], points[keep]
-    curvature = np.zeros(len(points))
+    back_to_all = np.cumsum(~repeat) - 1
     same = lane[1:] == lane[:-1]
-    if np.any(same):
-        along = points[1:] - points[:-1]
-        length = np.where(same, np.hypot(along[:, 0], along[:, 1]), 0.0)
-        heading = np.arctan2(along[:, 1], along[:, 0])
-        run = np.cumsum(np.r_[True, ~same]) - 1
-        # arc length from the run's start (a crossing between runs has length 0)
-        arc = run_cumsum(np.r_[0.0, length], run)
-        segment = np.flatnonzero(same)  # segment k joins point k and k + 1
-        seg_run = run[segment]
-        # heading made continuous inside each run, from the run's first segment
-        turn = (heading[segment[1:]] - heading[segment[:-1]] + np.pi) % (2 * np.pi) - np.pi
-        turn = np.r_[0.0, np.where(seg_run[1:] == seg_run[:-1], turn, 0.0)]
-        unwrapped = run_cumsum(turn, seg_run)
-        middle = 0.5 * (arc[segment] + arc[segment + 1])
-        first = np.flatnonzero(np.r_[True, seg_run[1:] != seg_run[:-1]])
-        last = np.r_[first[1:], len(segment)] - 1
-        runs = seg_run[first]
-        lo, hi = np.full(run[-1] + 1, np.nan), np.full(run[-1] + 1, np.nan)
-        lo[runs], hi[runs] = middle[first], middle[last]
-        start, end = np.full(run[-1] + 1, np.nan), np.full(run[-1] + 1, np.nan)
-        start[runs], end[runs] = arc[segment[first]], arc[segment[last] + 1]
+    if not np.any(same):
+        return [np.zeros(len(points))[back_to_all] for _ in windows]
+    along = points[1:] - points[:-1]
+    length = np.where(same, np.hypot(along[:, 0], along[:, 1]), 0.0)
+    heading = np.arctan2(along[:, 1], along[:, 0])
+    run = np.cumsum(np.r_[True, ~same]) - 1
+    # arc length from the run's start (a crossing between runs has length 0)
+    arc = run_cumsum(np.r_[0.0, length], run)
+    segment = np.flatnonzero(same)  # segment k joins point k and k + 1
+    seg_run = run[segment]
+    # heading made continuous inside each run, from the run's first segment
+    turn = (heading[segment[1:]] - heading[segment[:-1]] + np.pi) % (2 * np.pi) - np.pi
+    turn = np.r_[0.0, np.where(seg_run[1:] == seg_run[:-1], turn, 0.0)]
+    unwrapped = run_cumsum(turn, seg_run)
+    middle = 0.5 * (arc[segment] + arc[segment + 1])
+    first = np.flatnonzero(np.r_[True, seg_run[1:] != seg_run[:-1]])
+    last = np.r_[first[1:], len(segment)] - 1
+    runs = seg_run[first]
+    lo, hi = np.full(run[-1] + 1, np.nan), np.full(run[-1] + 1, np.nan)
+    lo[runs], hi[runs] = middle[first], middle[last]
+    start, end = np.full(run[-1] + 1, np.nan), np.full(run[-1] + 1, np.nan)
+    start[runs], end[runs] = arc[segment[first]], arc[segment[last] + 1]
+    has = np.isfinite(lo[run])
+    r = run[has]
+    has_arc = arc[has]
+    interp = RunTable(middle, seg_run).at(r)
+    found = []
+    for window in windows:
         half = 0.5 * window
-        has = np.isfinite(lo[run])
-        r = run[has]
         # headings are read between the run's first and last segment middles, so runs never mix
-        back = np.clip(arc[has] - half, lo[r], hi[r])
-        ahead = np.clip(arc[has] + half, lo[r], hi[r])
-        change = np.abs(run_interp(ahead, r, middle, unwrapped, seg_run)
-                        - run_interp(back, r, middle, unwrapped, seg_run))
-        span = np.minimum(arc[has] + half, end[r]) - np.maximum(arc[has] - half, start[r])
+        back = np.clip(has_arc - half, lo[r], hi[r])
+        ahead = np.clip(has_arc + half, lo[r], hi[r])
+        change = np.abs(interp(ahead, unwrapped) - interp(back, unwrapped))
+        span = np.minimum(has_arc + half, end[r]) - np.maximum(has_arc - half, start[r])
+        curvature = np.zeros(len(points))
         curvature[has] = np.where(span > 1e-9, change / np.maximum(span, 1e-9), 0.0)
-    return curvature[np.cumsum(~repeat) - 1]
+        found.append(curvature[back_to_all])
+    return found
 
 
 def swept_section(odr, near: np.ndarray, anchor: np.ndarray, roads: np.ndarray | None = None,

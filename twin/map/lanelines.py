@@ -13,6 +13,7 @@ the line before (after) a cusp near the start (end) is dropped, a cusp inside lo
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -177,6 +178,20 @@ class LaneEnds:
 ENDS_HEAD, ENDS_TAIL = 8.0, 16.0
 
 
+class EndsArrays(NamedTuple):
+    """``LaneEnds`` of many lanes: lane ``index[key]``'s head is ``head[head_at[i]:head_at[i + 1]]`` (and
+    ``head_along``), its tail ``tail[tail_at[i]:tail_at[i + 1]]``, its length ``length[i]``."""
+
+    index: dict
+    length: np.ndarray
+    head_at: np.ndarray
+    head: np.ndarray
+    head_along: np.ndarray
+    tail_at: np.ndarray
+    tail: np.ndarray
+    tail_along: np.ndarray
+
+
 class _EndsTable:
     """``LaneEnds`` of many lanes in a few flat arrays (a region has 161,781 lanes: an object and four arrays
     per lane would cost more than the points)."""
@@ -223,6 +238,13 @@ class _EndsTable:
     def length(self, key: LaneKey) -> float:
         return float(self._joined()[0][self.index[key]])
 
+    def arrays(self) -> EndsArrays:
+        """The whole table as flat arrays (``EndsArrays``), for measuring many lanes at once."""
+        if not self.index:
+            none, at = np.zeros(0), np.zeros(1, dtype=np.int64)
+            return EndsArrays({}, none, at, np.zeros((0, 2)), none, at, np.zeros((0, 2)), none)
+        return EndsArrays(self.index, *self._joined())
+
     def __getitem__(self, key: LaneKey) -> LaneEnds:
         length, head_at, head, head_along, tail_at, tail, tail_along = self._joined()
         i = self.index[key]
@@ -260,6 +282,11 @@ class LaneLines:
         if key in self._ends:
             return self._ends[key]
         return LaneEnds.of(self[key])
+
+    def ends_arrays(self) -> EndsArrays:
+        """The ends kept by ``scan`` as flat arrays: the lanes scanned, not those whose lines are kept (their
+        ends are ``ends(key)``)."""
+        return self._ends.arrays()
 
     def length(self, key: LaneKey) -> float:
         """The length of the lane's line (m)."""

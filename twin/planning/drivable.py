@@ -34,11 +34,12 @@ import numpy as np
 
 from tavf_mapkit.lanegraph import LaneGraph, LaneKey
 from tavf_mapkit.mesh.exact import run_cumsum
-from tavf_mapkit.mesh.swept_path import wheelbase_curvature
+from tavf_mapkit.mesh.swept_path import wheelbase_curvatures
 from twin.control.pid import CARLA_LIMITS, ActuatorLimits
 from twin.map import lanelines
 from twin.map.lanelines import ENDS_HEAD, ENDS_TAIL, LaneEnds, LaneLines
 from twin.planning.buffer import JOIN_GAP, join_cut, join_gap, straight_cut
+from twin.planning import steps
 from twin.planning.chunks import DEGENERATE_LANE
 from twin.vehicle.params import MODEL_S, VehicleParams
 
@@ -75,8 +76,7 @@ def corner_cut(lane: np.ndarray, points: np.ndarray, radius: float) -> np.ndarra
     length = np.zeros(run[-1] + 1 if len(run) else 0)
     np.maximum.at(length, run, arc)
     cut = np.zeros(len(points))
-    for window in WINDOWS:
-        curvature = wheelbase_curvature(lane, points, window)
+    for window, curvature in zip(WINDOWS, wheelbase_curvatures(lane, points, WINDOWS)):
         span = np.minimum(arc + 0.5 * window, length[run]) - np.maximum(arc - 0.5 * window, 0.0)
         turn = np.minimum(curvature * span, 0.9 * np.pi)  # the heading change over the window
         own_radius = 1.0 / np.maximum(curvature, 1e-9)
@@ -213,20 +213,36 @@ def lane_transitions(graph: LaneGraph, lines: LaneLines, undrivable: dict[LaneKe
     candidates = sorted(set(candidates))
     if not candidates:
         return result
-    # the polyline of every step, measured many at once: in batches of about BATCH_POINTS points (a region
+    # the polyline of every step, measured many at once: steps whose lanes meet straight from the lanes' kept
+    # ends, all at once (``steps``); the others one by one. In batches of about BATCH_POINTS points (a region
     # has millions), each step on its own, so batches give the same numbers
-    cut = []
-    polylines, points = [], 0
-    for k, (a, b) in enumerate(candidates):
-        polylines.append(_step_polyline(lines, a, b))
-        points += len(polylines[-1])
-        if points >= lanelines.BATCH_POINTS or k == len(candidates) - 1:
+    ends = lines.ends_arrays()
+    row = ends.index
+    table = np.array([a in row and b in row for a, b in candidates])
+    a_row = np.array([row[a] if t else 0 for (a, _), t in zip(candidates, table)], dtype=np.int64)
+    b_row = np.array([row[b] if t else 0 for (_, b), t in zip(candidates, table)], dtype=np.int64)
+    on_table = np.flatnonzero(table)
+    joined, owner, points = steps.joined_steps(ends, a_row[on_table], b_row[on_table])
+    cut = np.zeros(len(candidates))
+    for start, stop in _batches(owner):
+        measured = worst_cuts(owner[start:stop], points[start:stop], radius, max_cut)
+        cut[on_table[np.unique(owner[start:stop])]] = measured
+    alone = np.ones(len(candidates), dtype=bool)
+    alone[on_table[joined]] = False
+    alone = np.flatnonzero(alone).tolist()
+    polylines, count = [], 0
+    for n, k in enumerate(alone):
+        polylines.append(_step_polyline(lines, *candidates[k]))
+        count += len(polylines[-1])
+        if count >= lanelines.BATCH_POINTS or n == len(alone) - 1:
             lane = np.repeat(np.arange(len(polylines)), [len(p) for p in polylines])
-            cut.append(worst_cuts(lane, np.concatenate(polylines), radius, max_cut))
-            polylines, points = [], 0
-    cut = np.concatenate(cut)
-    for (a, b), worst in zip(candidates, cut):
-        if abs(_wrap(_headings(lines, b)[0] - _headings(lines, a)[1])) > U_TURN:
+            cut[alone[n + 1 - len(polylines):n + 1]] = worst_cuts(lane, np.concatenate(polylines), radius, max_cut)
+            polylines, count = [], 0
+    first_heading, last_heading = steps.end_headings(ends)
+    for (a, b), worst, t, i, j in zip(candidates, cut.tolist(), table.tolist(), a_row.tolist(), b_row.tolist()):
+        turn = (float(first_heading[j]) - float(last_heading[i]) if t
+                else _headings(lines, b)[0] - _headings(lines, a)[1])
+        if abs(_wrap(turn)) > U_TURN:
             result.dropped[a, b] = "u-turn"
             result.u_turn[a].append(b)
         elif worst > max_cut:
@@ -237,6 +253,16 @@ def lane_transitions(graph: LaneGraph, lines: LaneLines, undrivable: dict[LaneKe
     for a in result.u_turn:
         result.u_turn[a] = sorted(set(result.u_turn[a]))
     return result
+
+
+def _batches(owner: np.ndarray):
+    """(start, stop) of runs of about ``BATCH_POINTS`` points that end where a step (equal ``owner``) ends."""
+    start = 0
+    while start < len(owner):
+        stop = min(start + lanelines.BATCH_POINTS, len(owner))
+        stop = int(np.searchsorted(owner, owner[stop - 1], side="right"))
+        yield start, stop
+        start = stop
 
 
 def _step_polyline(lines: LaneLines, a: LaneKey, b: LaneKey) -> np.ndarray:
