@@ -61,10 +61,11 @@ WAITING_TASKS_CONFIG = {
 }
 
 # Workers that compute (a build's tile stages): the sampling profiler (a stack sample every 10 ms) measures
-# nothing we read.
+# nothing we read; the tasks' modules are imported when a worker starts (``mesh.remote.dask_setup``).
 COMPUTING_TASKS_CONFIG = {
     **NO_MALLOC_TRIM,
     "distributed.worker.profile.enabled": False,
+    "distributed.worker.preload": ["tavf_mapkit.mesh.remote"],
 }
 
 

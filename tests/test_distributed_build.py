@@ -213,16 +213,18 @@ def test_shared_bytes_lost_with_their_only_worker_are_sent_again(tmp_path):
 
 def test_computing_workers_and_a_map_that_starts_before_it_is_read(tmp_path):
     """A build's local workers run with glibc's own malloc trimming (Dask's MALLOC_TRIM_THRESHOLD_=65536 made a
-    worker page-fault 15x as often on Krems) and without the sampling profiler; a map's first tasks run before
-    its first result is asked for (the workers make the junction curbs while the client places buildings), and
-    its results still come in order."""
+    worker page-fault 15x as often on Krems), without the sampling profiler and with the tasks' modules imported
+    when they start; a map's first tasks run before its first result is asked for (the workers make the junction
+    curbs while the client places buildings), and its results still come in order."""
     from tavf_mapkit.cluster import connect
+    from tavf_mapkit.mesh.remote import TASK_MODULES
 
     marks = [tmp_path / f"ran-{k}" for k in range(3)]
     with connect(workers=1) as fanout:
         settings = fanout.client.run(lambda: (os.environ.get("MALLOC_TRIM_THRESHOLD_"),
-                                              __import__("dask").config.get("distributed.worker.profile.enabled")))
-        assert set(settings.values()) == {(None, False)}, settings
+                                              __import__("dask").config.get("distributed.worker.profile.enabled"),
+                                              all(name in sys.modules for name in TASK_MODULES)))
+        assert set(settings.values()) == {(None, False, True)}, settings
         results = fanout.map(Path.write_text, [(mark, str(k)) for k, mark in enumerate(marks)])
         # no result read yet: the tasks were submitted, and ran
         assert wait_until(lambda: all(mark.is_file() for mark in marks), 60), "the tasks waited to be read"
