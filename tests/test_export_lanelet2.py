@@ -9,6 +9,7 @@ nodes lie within 1 mm; lanelets run in the driving direction, also under ``rule=
 
 from __future__ import annotations
 
+import itertools
 import os
 import re
 import time
@@ -398,7 +399,7 @@ def test_parts_make_the_same_map(sample_build_dir):
         runs = section_runs(arrays, samples.section, part_pairs)
         # the runs cover the samples in order, each of whole sections, none much bigger than asked
         assert runs[0].start == 0 and runs[-1].stop == len(samples.section)
-        assert all(a.stop == b.start for a, b in zip(runs, runs[1:]))
+        assert all(a.stop == b.start for a, b in itertools.pairwise(runs))
         assert all(samples.section[r.start - 1] != samples.section[r.start] for r in runs[1:])
         for run in runs:
             pairs = lanes[samples.section[run]]
