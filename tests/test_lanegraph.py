@@ -320,3 +320,20 @@ def _sample_counts(path) -> tuple[int, int]:
 
     sampling = sample_lanes(load_opendrive(path), 1.0)
     return len(sampling.sample_s), len(sampling.pair_lane)
+
+
+def test_s_values_of_many_sections_at_once_are_each_sections_own():
+    """``centerlines`` spaces the s values of a region's lane sections at once (``sections_s_values``), the
+    same bits as ``np.linspace`` gives each section (``section_s_values``): sections of any length and
+    offset, exactly a step long, shorter than the rounding margin, of zero and negative length."""
+    from tavf_mapkit.lanegraph.geometry import section_s_values, sections_s_values
+
+    rng = np.random.default_rng(5)
+    s0 = rng.uniform(0, 5000, 20_000)
+    s0[::3] = np.round(s0[::3], 2)
+    length = np.r_[rng.uniform(0, 300, 19_990), [0.0, -1.0, 1e-300, 1e-9, 2e-9, 0.5, 1.0, 1.0000000001, 3.0, 7.0]]
+    for step in (1.0, 0.5, 0.3):
+        values, counts = sections_s_values(s0, s0 + length, step)
+        assert counts.sum() == len(values)
+        for a, b, part in zip(s0.tolist(), (s0 + length).tolist(), np.split(values, np.cumsum(counts)[:-1])):
+            assert part.tobytes() == section_s_values(a, b, step).tobytes(), (a, b, step)

@@ -148,3 +148,25 @@ def section_s_values(s0: float, s1: float, step: float) -> np.ndarray:
         return np.array([s0])
     count = max(int(np.ceil((s1 - s0) / step - 1e-9)), 1)
     return np.linspace(s0, s1, count + 1)
+
+
+def sections_s_values(s0: np.ndarray, s1: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """``section_s_values`` of many sections at once: (every section's values, one after the other; how many
+    each has). The same bits as ``np.linspace`` gives one section (k * ((s1 - s0) / count) + s0, the last
+    one s1); a step that underflows to 0 is left to ``section_s_values``."""
+    s0, s1 = np.asarray(s0, dtype=float), np.asarray(s1, dtype=float)
+    delta = s1 - s0
+    positive = delta > 0
+    count = np.ones(len(s0), dtype=np.int64)
+    with np.errstate(invalid="ignore"):
+        count[positive] = np.maximum(np.ceil(delta[positive] / step - 1e-9), 1).astype(np.int64)
+    points = np.where(positive, count + 1, 1)
+    owner = np.repeat(np.arange(len(s0)), points)
+    k = (np.arange(len(owner)) - np.repeat(np.cumsum(points) - points, points)).astype(float)
+    spacing = np.where(positive, delta / count, 0.0)
+    values = k * spacing[owner] + s0[owner]
+    ends = np.cumsum(points) - 1
+    values[ends[positive]] = s1[positive]
+    for i in np.flatnonzero(positive & (spacing == 0)).tolist():  # a denormal step: linspace's own branch
+        values[ends[i] - count[i]:ends[i] + 1] = section_s_values(float(s0[i]), float(s1[i]), step)
+    return values, points

@@ -16,7 +16,8 @@ import numpy as np
 
 from tavf_mapkit.errors import MapkitError
 from tavf_mapkit.lanegraph.edges import FOLLOW, KIND_NAMES, LEFT, RIGHT, EdgeArrays, euclidean
-from tavf_mapkit.lanegraph.geometry import LaneTable, centre_points, lane_samples, section_s_values
+from tavf_mapkit.lanegraph.geometry import LaneTable, centre_points, lane_samples, section_s_values, \
+    sections_s_values
 from tavf_mapkit.lanegraph.keys import LaneKey, drives_with_s, lane_toward_minus_t, lane_toward_plus_t
 from tavf_mapkit.lanegraph.lanechange import lane_change_allowed
 from tavf_mapkit.lanegraph.topology import lane_end_pairs
@@ -262,14 +263,16 @@ class LaneGraph:
         keys = list(keys)
         if not keys:
             return {}
-        values = []
+        bounds = []
         for key in keys:
             road = self.odr.roads[key.road_index]
-            values.append(section_s_values(road.lane_sections[key.section_index].s0,
-                                           road.section_end(key.section_index), step))
-        counts = [len(v) for v in values]
+            bounds.append((road.lane_sections[key.section_index].s0, road.section_end(key.section_index)))
+        s0, s1 = np.array(bounds, dtype=float).reshape(-1, 2).T
+        s, counts = sections_s_values(s0, s1, step)
         rows = np.repeat([self.row(k) for k in keys], counts)
-        points = np.split(centre_points(self.odr, rows, np.concatenate(values)), np.cumsum(counts)[:-1])
+        cuts = np.cumsum(counts)[:-1]
+        points = np.split(centre_points(self.odr, rows, s), cuts)
+        values = np.split(s, cuts)
         found = {}
         for key, p, s in zip(keys, points, values):
             found[key] = (p, s) if self.drives_with_s(key) else (p[::-1], s[::-1])

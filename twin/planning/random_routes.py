@@ -60,10 +60,13 @@ class RandomRoutes:
         follow = self.transitions.follow
         keep = set(follow)  # drivable lanes of DEGENERATE_LANE or more
         lateral = {k: [b for b in graph.lane_changes(k) if b in keep] for k in keep}
-        keep = self._without_blocked_ends(keep, follow, lateral)
+        # lanes by section, of every lane kept so far: its users ask only for lanes still kept, so one table
+        # serves while lanes are dropped (sorting a region's lanes again for each round cost seconds)
+        by_section = self._by_section(keep)
+        keep = self._without_blocked_ends(keep, follow, lateral, by_section)
         follow = {k: [b for b in follow[k] if b in keep] for k in keep}
         lateral = {k: [b for b in lateral[k] if b in keep] for k in keep}
-        turnaround = self._turnarounds(keep, follow)
+        turnaround = self._turnarounds(keep, follow, by_section)
         loop = self._largest_progressing(keep, follow, lateral, {})
         turning = self._largest_progressing(keep, follow, lateral, turnaround)
         if loop and (not turning or self._length(loop) >= TURNAROUND_SHARE * self._length(turning)):
@@ -93,7 +96,8 @@ class RandomRoutes:
     def _turnaround_target(self, key: LaneKey, keep, by_section) -> LaneKey | None:
         """Where a car at the end of dead-end lane ``key`` turns around: the nearest drivable lane of the
         opposite direction that netconvert's turnaround from the lane's end leads into (a U-turn the car
-        cannot drive in lane), or that enters the same lane section at its end; None without one."""
+        cannot drive in lane), or that enters the same lane section at its end; None without one.
+        ``by_section``: ``_by_section`` of ``keep`` or of more lanes (only those in ``keep`` count)."""
         graph, lines = self.graph, self.lines
         forward = graph.drives_with_s(key)
         targets = {k for k in self.transitions.u_turn[key] if k in keep}
@@ -104,9 +108,8 @@ class RandomRoutes:
         end = lines.ends(key).tail[-1]
         return min(targets, key=lambda k: (float(np.hypot(*(lines.ends(k).head[0] - end))), k))
 
-    def _turnarounds(self, keep: set[LaneKey], follow: dict) -> dict[LaneKey, list[LaneKey]]:
+    def _turnarounds(self, keep: set[LaneKey], follow: dict, by_section: dict) -> dict[LaneKey, list[LaneKey]]:
         """Dead-end lane -> [where a car turns around (``_turnaround_target``)]."""
-        by_section = self._by_section(keep)
         found = {}
         for key in sorted(keep):
             if not follow[key]:
@@ -115,7 +118,8 @@ class RandomRoutes:
                     found[key] = [target]
         return found
 
-    def _without_blocked_ends(self, keep: set[LaneKey], follow: dict, lateral: dict) -> set[LaneKey]:
+    def _without_blocked_ends(self, keep: set[LaneKey], follow: dict, lateral: dict,
+                              by_section: dict) -> set[LaneKey]:
         """``keep`` without the lanes that lead only into dead ends of our own making. A lane the map leads
         on from, but only through a bend the car cannot drive (``Transitions.blocked``), or only into lanes
         dropped here, is dropped when it has no lane to turn around into and no lane change towards a lane
@@ -136,7 +140,6 @@ class RandomRoutes:
             return self._turnaround_target(k, keep, by_section) is not None
 
         while True:
-            by_section = self._by_section(keep)
             stuck = [k for k in sorted(keep) if not drives_on(k, by_section)]
             # a lane change towards a lane that drives on is a way on, too (runs of changes stay in a section)
             dropped = []
