@@ -433,6 +433,22 @@ def test_file_written_in_blocks(tmp_path, monkeypatch):
     assert osmxml.osm_text(laneletmap, lon, lat, "c") == whole
 
 
+def test_merged_nodes_numbered_by_first_point():
+    """Points closer than NODE_RADIUS and joined points become one node at their mean; nodes are numbered in
+    the order of their first point (the file must not depend on scipy's component numbering)."""
+    from tavf_mapkit.lanelet2_export.nodes import NODE_RADIUS, merge_points
+
+    rng = np.random.default_rng(5)
+    base = rng.uniform(0, 100, (300, 3))
+    points = np.concatenate([base, base[::-1] + 0.2 * NODE_RADIUS, base[:10] + 1.0])  # copies, then far ones
+    node_of, positions = merge_points(points, np.array([[0, 300 + 300 + 9]]))  # point 0 joined to base[9] + 1
+    _, first = np.unique(node_of, return_index=True)
+    assert np.array_equal(node_of[np.sort(first)], np.arange(len(positions)))
+    assert len(positions) == 300 + 9 and node_of[609] == node_of[0]
+    assert np.array_equal(node_of[300:600], node_of[:300][::-1])
+    assert positions[node_of[1]] == pytest.approx(base[1] + 0.1 * NODE_RADIUS)
+
+
 def test_runs_of_sections():
     """untangle's members per suspect section by one stable sort: what a mask per section gives."""
     from tavf_mapkit.lanelet2_export.untangle import _runs_of

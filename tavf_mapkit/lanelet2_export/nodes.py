@@ -60,8 +60,8 @@ def merge_points(
 
 def _first_order(label: np.ndarray) -> np.ndarray:
     """Relabel components 0, 1, ... in the order of their first member."""
-    _, first = np.unique(label, return_index=True)
+    _, first, inverse = np.unique(label, return_index=True, return_inverse=True)  # one sort of the labels
     order = np.argsort(first)
     rank = np.empty(len(order), dtype=np.int64)
     rank[order] = np.arange(len(order))
-    return rank[np.searchsorted(np.unique(label), label)]
+    return rank[inverse]

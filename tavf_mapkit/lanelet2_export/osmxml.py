@@ -80,7 +80,7 @@ def osm_chunks(laneletmap, lon: np.ndarray, lat: np.ndarray, comment: str = ""):
         yield "".join(
             _join(
                 '  <node id="',
-                np.arange(block.start + 1, block.stop + 1).astype(str),
+                np.arange(block.start + 1, block.stop + 1).astype(_STRING),
                 '" version="1" lat="',
                 _fixed(lat[block], 10),
                 '" lon="',
@@ -93,7 +93,7 @@ def osm_chunks(laneletmap, lon: np.ndarray, lat: np.ndarray, comment: str = ""):
     for first in range(0, n_ways, _BLOCK):
         ways = laneletmap.way_nodes[first : first + _BLOCK]
         counts = np.array([len(nodes) for nodes in ways], dtype=np.int64)
-        refs = _join('    <nd ref="', (np.concatenate(ways) + 1).astype(str), '"/>\n').tolist()
+        refs = _join('    <nd ref="', (np.concatenate(ways) + 1).astype(_STRING), '"/>\n').tolist()
         ends = np.cumsum(counts)
         parts = []
         for w, (start, end) in enumerate(zip(ends - counts, ends), start=first):
