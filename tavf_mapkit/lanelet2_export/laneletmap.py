@@ -4,8 +4,8 @@ neighbours.
 Steps (vectorised over the map but the per-lane, per-way and per-signal bookkeeping):
 
 1. sample every lane section once, adaptively (no bound further than ``eps`` from the exact border) or every
-   ``step`` metres, and evaluate each needed border there (``bounds.border_part``), in parts of whole lane sections
-   (``parts``: a region's samples at once would exceed the map's allocation budget);
+   ``step`` metres, and evaluate each needed border there (``bounds.border_part``), in parts of whole lane
+   sections (``parts``: a region's samples at once would exceed the map's allocation budget);
 2. pick the lanes that get a lanelet (``mapping.lanelet_tags``) and orient each along its driving direction
    (``lanegraph.drives_with_s``: right-hand traffic drives right lanes with s, ``rule="LHT"`` mirrors it, an
    OpenDRIVE 1.8 ``direction="reversed"`` flips it): left bound = the border on the driver's left;
