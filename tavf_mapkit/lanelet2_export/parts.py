@@ -1,10 +1,11 @@
 """The map's lane samples in parts, so a region's export stays within the map's budget of one allocation.
 
 Sampling every lane at once costs ~400 bytes per (lane, sample) pair through the reference frame and the
-border offsets; Columbus has 4.25 million pairs at the export's 1 cm, more than ``budget.MAX_POINTS`` allows in
-one go. The export samples runs of consecutive lane sections of about ``PART_PAIRS`` pairs instead and keeps from
-each only what it writes (border and centre points, tangents, a few numbers per lane). Every number is
-evaluated per sample, so the parts' results one after the other are the whole map's, bit for bit.
+border offsets; Columbus has 4.25 million pairs at the export's 1 cm, more than ``budget.MAX_POINTS``
+allows in one go. The export samples runs of consecutive lane sections of about ``PART_PAIRS`` pairs
+instead and keeps from each only what it writes (border and centre points, tangents, a few numbers per
+lane). Every number is evaluated per sample, so the parts' results one after the other are the whole
+map's, bit for bit.
 """
 
 from __future__ import annotations
