@@ -83,7 +83,7 @@ def export(ctx: click.Context, xodr: str, layer: str | None, target: str | None,
     back the OpenDRIVE x, y (to millimetres within a few km), UtmProjector the UTM easting/northing relative to
     the origin's. See docs/export.md.
     """
-    from tavf_mapkit.opendrive import load_opendrive
+    from tavf_mapkit.opendrive.snapshot import load_build_map  # the build's snapshot when the file has one
 
     if (layer is None) == (target is None):
         raise click.UsageError("give either --layer LAYER or --to lanelet2")
@@ -96,14 +96,14 @@ def export(ctx: click.Context, xodr: str, layer: str | None, target: str | None,
         if as_json and output == "-":
             raise click.UsageError("--json prints the summary on standard output: write the map with -o FILE")
         fixed_step = step if ctx.get_parameter_source("step") is not click.core.ParameterSource.DEFAULT else None
-        _export_lanelet2(load_opendrive(xodr), xodr, output, eps, fixed_step, origin, as_json)
+        _export_lanelet2(load_build_map(xodr), xodr, output, eps, fixed_step, origin, as_json)
         return
     for name in ("eps", "origin", "as_json"):
         if ctx.get_parameter_source(name) is not click.core.ParameterSource.DEFAULT:
             option = {"as_json": "--json"}.get(name, f"--{name}")
             raise click.UsageError(f"{option} is for --to lanelet2")
 
-    odr = load_opendrive(xodr)
+    odr = load_build_map(xodr)
     crs = (crs or ("local" if fmt == "csv" else "wgs84")).strip()
     transform = _transform(odr, crs, xodr)
     degrees = crs.lower() == "wgs84" or crs.upper() in ("EPSG:4326", "EPSG:4258")

@@ -23,10 +23,10 @@ def info(xodr: str, as_json: bool) -> None:
     self-contradiction such as a UTM zone that does not contain +lon_0). Exit code 2 if the file
     cannot be read.
     """
-    from tavf_mapkit.opendrive import load_opendrive
+    from tavf_mapkit.opendrive.snapshot import load_build_map  # the build's snapshot when the file has one
     from tavf_mapkit.opendrive.summary import format_summary, summarise
 
-    summary = summarise(load_opendrive(xodr))
+    summary = summarise(load_build_map(xodr))
     if as_json:
         click.echo(json.dumps(summary, indent=2))
     else:

@@ -59,10 +59,10 @@ def match_trace(map_path: str, trace: Path, as_json: bool, lane_types: str, sigm
     """
     from tavf_mapkit.accuracy.matching import match_trace as run
     from tavf_mapkit.lanegraph import LaneGraph
-    from tavf_mapkit.opendrive import load_opendrive
+    from tavf_mapkit.opendrive.snapshot import load_build_map  # the build's snapshot when the file has one
     from tavf_mapkit.traces import read_trace
 
-    odr = load_opendrive(map_path)
+    odr = load_build_map(map_path)
     recording = read_trace(trace)
     types = tuple(t.strip() for t in lane_types.split(",") if t.strip())
     graph = LaneGraph.from_opendrive(odr, lane_types=types)

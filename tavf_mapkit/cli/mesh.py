@@ -43,9 +43,9 @@ def mesh(xodr: str, output: Path, eps: float, fmt: str, tile: float, osm_path: P
     recentred on mesh.json's origin and use glTF's +Y-up axes: (X, Y, Z) = (x - ox, z - oz, -(y - oy)).
     """
     from tavf_mapkit.mesh.folder import replace_folder, write_mesh_folder
-    from tavf_mapkit.opendrive import load_opendrive
+    from tavf_mapkit.opendrive.snapshot import load_build_map  # the build's snapshot when the file has one
 
-    odr = load_opendrive(xodr)
+    odr = load_build_map(xodr)
     summary = replace_folder(output, lambda folder: write_mesh_folder(
         odr, folder, eps, fmt, tile, osm_path=osm_path, solids=solids, preview=preview))
     if as_json:
