@@ -222,13 +222,18 @@ def lane_transitions(graph: LaneGraph, lines: LaneLines, undrivable: dict[LaneKe
     a_row = np.array([row[a] if t else 0 for (a, _), t in zip(candidates, table)], dtype=np.int64)
     b_row = np.array([row[b] if t else 0 for (_, b), t in zip(candidates, table)], dtype=np.int64)
     on_table = np.flatnonzero(table)
-    joined, owner, points = steps.joined_steps(ends, a_row[on_table], b_row[on_table])
     cut = np.zeros(len(candidates))
-    for start, stop in _batches(owner):
-        measured = worst_cuts(owner[start:stop], points[start:stop], radius, max_cut)
-        cut[on_table[np.unique(owner[start:stop])]] = measured
     alone = np.ones(len(candidates), dtype=bool)
-    alone[on_table[joined]] = False
+    # steps a part at a time (a step is some 20 points: a part about BATCH_POINTS), so that a region's steps
+    # are never gathered all at once
+    part_steps = max(lanelines.BATCH_POINTS // 32, 1)
+    for low in range(0, len(on_table), part_steps):
+        part = on_table[low:low + part_steps]
+        joined, owner, points = steps.joined_steps(ends, a_row[part], b_row[part])
+        for start, stop in _batches(owner):
+            measured = worst_cuts(owner[start:stop], points[start:stop], radius, max_cut)
+            cut[part[np.unique(owner[start:stop])]] = measured
+        alone[part[joined]] = False
     alone = np.flatnonzero(alone).tolist()
     polylines, count = [], 0
     for n, k in enumerate(alone):
