@@ -86,7 +86,16 @@ def check_sumo_net(path: str | Path) -> dict:
     location = None
     root_seen = False
     lefthand = False
-    for _event, element in iterparse_safe(source, events=("start",)):
+    # counted at the start of each element, let go at the end of each child of <net> with the ones before it:
+    # a region's network (Columbus: 126 MB) is never a whole tree in memory (it was ~500 MB of the report stage)
+    for event, element in iterparse_safe(source, events=("start", "end")):
+        if event == "end":
+            parent = element.getparent()
+            if parent is not None and parent.getparent() is None:
+                element.clear()
+                while element.getprevious() is not None:
+                    del parent[0]
+            continue
         if not root_seen:
             root_seen = True
             if element.tag != "net":

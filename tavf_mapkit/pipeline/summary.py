@@ -22,17 +22,21 @@ def opendrive_counts(xodr: Path) -> dict:
                              tag=("{*}road", "{*}junction", "{*}signal", "{*}object"))
     for _event, element in context:
         tag = etree.QName(element).localname
+        parent = element.getparent()
+        top_level = parent is not None and parent.getparent() is None
         if tag == "road":
             counts["roads"] += 1
             length += float(element.get("length", 0.0) or 0.0)
-            element.clear()
-        elif tag == "junction" and element.getparent() is not None \
-                and etree.QName(element.getparent()).localname == "OpenDRIVE":
+        elif tag == "junction" and parent is not None and etree.QName(parent).localname == "OpenDRIVE":
             counts["junctions"] += 1
         elif tag == "signal":
             counts["signals"] += 1
         elif tag == "object":
             counts["objects"] += 1
+        if top_level:  # a road or junction done: it and the elements before it go (a region's file is GBs)
+            element.clear()
+            while element.getprevious() is not None:
+                del parent[0]
     counts["road_length_km"] = round(length / 1000, 3)
     return counts
 
