@@ -17,10 +17,9 @@ def _sumo_net(path: Path) -> None:
     with open(path, "w", encoding="utf-8") as out:
         out.write('<net version="1.20"><location netOffset="0,0" convBoundary="0,0,100,100" '
                   'origBoundary="9,53,10,54" projParameter="!"/>\n')
-        for k in range(EDGES):
-            out.write(f'<edge id="e{k}" from="a" to="b"><lane id="e{k}_0" index="0" speed="13.89" length="100" '
+        out.writelines(f'<edge id="e{k}" from="a" to="b"><lane id="e{k}_0" index="0" speed="13.89" length="100" '
                       f'shape="0,0 100,0"/><lane id="e{k}_1" index="1" speed="13.89" length="100" '
-                      f'shape="0,3 100,3"/></edge>\n')
+                      f'shape="0,3 100,3"/></edge>\n' for k in range(EDGES))
         out.write('<junction id="a" type="priority" x="0" y="0"/><tlLogic id="t"/></net>\n')
 
 
@@ -31,8 +30,7 @@ def _opendrive(path: Path) -> None:
             '</laneSection></lanes><signals><signal id="s{k}" s="1" t="0"/></signals></road>\n')
     with open(path, "w", encoding="utf-8") as out:
         out.write('<OpenDRIVE><header revMajor="1" revMinor="6"/>\n')
-        for k in range(EDGES):
-            out.write(road.format(k=k))
+        out.writelines(road.format(k=k) for k in range(EDGES))
         # junctions after the roads, as netconvert writes them: a city's are tens of thousands of connections
         links = "".join(f'<laneLink from="-{n}" to="-{n}"/>' for n in range(1, 4))
         for k in range(JUNCTIONS):
