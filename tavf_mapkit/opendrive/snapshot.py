@@ -74,11 +74,9 @@ def code_key() -> bytes:
 
 
 def file_key(xodr: str | Path) -> bytes:
-    digest = hashlib.sha256()
-    with open(xodr, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
-    return digest.digest()
+    from tavf_mapkit.pipeline.manifest import file_sha256  # the one sha256 of a file, as the manifest has it
+
+    return bytes.fromhex(file_sha256(xodr))
 
 
 def snapshot_file(xodr: str | Path, path: str | Path | None = None) -> OpenDriveMap:
