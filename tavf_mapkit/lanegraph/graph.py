@@ -16,8 +16,13 @@ import numpy as np
 
 from tavf_mapkit.errors import MapkitError
 from tavf_mapkit.lanegraph.edges import FOLLOW, KIND_NAMES, LEFT, RIGHT, EdgeArrays, euclidean
-from tavf_mapkit.lanegraph.geometry import LaneTable, centre_points, lane_samples, section_s_values, \
-    sections_s_values
+from tavf_mapkit.lanegraph.geometry import (
+    LaneTable,
+    centre_points,
+    lane_samples,
+    section_s_values,
+    sections_s_values,
+)
 from tavf_mapkit.lanegraph.keys import LaneKey, drives_with_s, lane_toward_minus_t, lane_toward_plus_t
 from tavf_mapkit.lanegraph.lanechange import lane_change_allowed
 from tavf_mapkit.lanegraph.topology import lane_end_pairs

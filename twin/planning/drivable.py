@@ -38,8 +38,8 @@ from tavf_mapkit.mesh.swept_path import wheelbase_curvatures
 from twin.control.pid import CARLA_LIMITS, ActuatorLimits
 from twin.map import lanelines
 from twin.map.lanelines import ENDS_HEAD, ENDS_TAIL, LaneEnds, LaneLines
-from twin.planning.buffer import JOIN_GAP, join_cut, join_gap, straight_cut
 from twin.planning import steps
+from twin.planning.buffer import JOIN_GAP, join_cut, join_gap, straight_cut
 from twin.planning.chunks import DEGENERATE_LANE
 from twin.vehicle.params import MODEL_S, VehicleParams
 
