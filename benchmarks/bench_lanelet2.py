@@ -2,8 +2,8 @@
 
     $ nice -n 10 .venv/bin/python benchmarks/bench_lanelet2.py build/NAME/NAME.xodr --out /tmp/l2 [--json fig.json]
 
-Two processes, one after the other, so each peak is its own: the export (load the OpenDRIVE, ``export_lanelet2``
-to OUT/NAME.osm, as ``mapkit export --to lanelet2`` does) and the check (load it again, load the .osm with
+Two processes, one after the other, so each peak is its own: the export (load the OpenDRIVE, from the build's
+NAME.odrmap when it is valid; ``export_lanelet2`` to OUT/NAME.osm, as ``mapkit export --to lanelet2`` does) and the check (load it again, load the .osm with
 Lanelet2 and run the test's ``check_against_lanelet2`` -- the same function, imported from
 tests/test_export_lanelet2.py, with the test's load-without-errors and routing-graph checks; a failed check
 fails the run). Printed: lanelets, nodes, file size, load and export time, centre max / p99, lane-graph edges
@@ -25,11 +25,11 @@ REPO = HERE.parent
 
 EXPORT = r"""
 import json, resource, sys, time
-from tavf_mapkit.opendrive import load_opendrive
+from tavf_mapkit.opendrive.snapshot import load_build_map
 from tavf_mapkit.lanelet2_export import export_lanelet2
 xodr, osm = sys.argv[1], sys.argv[2]
 t0 = time.perf_counter()
-odr = load_opendrive(xodr)
+odr = load_build_map(xodr)  # a build's snapshot when it has one
 t1 = time.perf_counter()
 loaded = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 summary = export_lanelet2(odr, osm, name=xodr)
@@ -44,10 +44,10 @@ import json, resource, sys, time
 sys.path.insert(0, sys.argv[4])
 import lanelet2
 from test_export_lanelet2 import Lanelet2View, check_against_lanelet2
-from tavf_mapkit.opendrive import load_opendrive
+from tavf_mapkit.opendrive.snapshot import load_build_map
 xodr, osm, origin = sys.argv[1], sys.argv[2], json.loads(sys.argv[3])
 t0 = time.perf_counter()
-odr = load_opendrive(xodr)
+odr = load_build_map(xodr)  # a build's snapshot when it has one
 t1 = time.perf_counter()
 view = Lanelet2View(lanelet2, osm, tuple(origin), odr)
 t2 = time.perf_counter()
