@@ -242,3 +242,23 @@ def test_replaying_the_shared_ride_lands_on_the_recording(tavf_dlr_build, tmp_pa
     assert metrics["trace_fixes"] == 587 and metrics["trace_fixes_matched"] > 400
     assert metrics["trace_distance_mean_m"] - metrics["trace_floor_mean_m"] <= 0.5
     assert metrics["route_completed"]
+
+
+def test_drive_plot_samples_the_map_in_parts(sample_build_dir):
+    """drive.png's lane centres, sampled a part of the map at a time (a region's at once are refused by the
+    map's allocation budget), are the whole map's samples inside the plot, in the same order."""
+    import numpy as np
+
+    from tavf_mapkit.opendrive import load_opendrive
+    from tavf_mapkit.opendrive.sampling import sample_lanes
+    from twin.session.plot import lane_centres_in
+
+    odr = load_opendrive(sample_build_dir / "sample.xodr")
+    whole = sample_lanes(odr, 2.0)
+    centre = whole.center_points(with_height=False)
+    box = (-150.0, -120.0, 200.0, 90.0)
+    inside = (centre[:, 0] > box[0]) & (centre[:, 0] < box[2]) & (centre[:, 1] > box[1]) & (centre[:, 1] < box[3])
+    assert 0 < inside.sum() < len(centre)
+    parts, driving = lane_centres_in(odr, *box, chunk_points=500)
+    np.testing.assert_array_equal(parts, centre[inside])
+    np.testing.assert_array_equal(driving, whole.lane_type[inside] == "driving")
