@@ -10,7 +10,6 @@ def plot_drive(path: Path, session, recorder, margin: float = 60.0) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
     import numpy as np
 
     x, y, speed = recorder.column("x"), recorder.column("y"), recorder.column("speed")
