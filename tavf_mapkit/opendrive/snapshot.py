@@ -22,6 +22,7 @@ import pickle
 import sys
 from dataclasses import fields, is_dataclass, replace
 from functools import lru_cache
+from importlib import import_module
 from pathlib import Path
 
 import numpy as np
@@ -65,11 +66,7 @@ def code_key() -> bytes:
     versions. Another checkout, release or numpy makes other objects, so it reads the file instead."""
     digest = hashlib.sha256(f"{sys.version_info[:2]} numpy {np.__version__}".encode())
     for module in sorted(_MODEL):
-        path = Path(sys.modules[module].__file__) if module in sys.modules else None
-        if path is None:
-            __import__(module)
-            path = Path(sys.modules[module].__file__)
-        digest.update(module.encode() + b"\0" + path.read_bytes())
+        digest.update(module.encode() + b"\0" + Path(import_module(module).__file__).read_bytes())
     return digest.digest()
 
 

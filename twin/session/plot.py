@@ -10,16 +10,14 @@ def plot_drive(path: Path, session, recorder, margin: float = 60.0) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    import numpy as np
 
     x, y, speed = recorder.column("x"), recorder.column("y"), recorder.column("speed")
     west, east = float(x.min()) - margin, float(x.max()) + margin
     south, north = float(y.min()) - margin, float(y.max()) + margin
     centre, driving = lane_centres_in(session.odr, west, south, east, north)
-    inside = np.ones(len(centre), dtype=bool)
     figure, axes = plt.subplots(figsize=(8, 8), dpi=100)
-    axes.scatter(centre[inside & driving, 0], centre[inside & driving, 1], s=0.3, c="0.7", linewidths=0)
-    axes.scatter(centre[inside & ~driving, 0], centre[inside & ~driving, 1], s=0.3, c="0.85", linewidths=0)
+    axes.scatter(centre[driving, 0], centre[driving, 1], s=0.3, c="0.7", linewidths=0)
+    axes.scatter(centre[~driving, 0], centre[~driving, 1], s=0.3, c="0.85", linewidths=0)
     route = session.route
     if route is not None:
         fx, fy = route.matched_xy
