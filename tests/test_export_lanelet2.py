@@ -4,7 +4,8 @@ On a synthetic road with every feature at a known place, on the sample build, on
 and (slow) on the TAVF and Jungfernstieg builds: the file loads with no errors at our origin; the routing graph of
 Lanelet2's German vehicle rules has exactly our lane graph's successors and lane changes (and the same reachable
 sets); the lanelets' centre lines lie within 5 cm of our lane centres; neighbours share their bound way and no two
-nodes lie within 1 mm; lanelets run in the driving direction, also under ``rule="LHT"``.
+nodes lie within 1 mm but where a lane ends on a point of a section no link joins it to (one node there could
+make Lanelet2 read a successor); lanelets run in the driving direction, also under ``rule="LHT"``.
 """
 
 from __future__ import annotations
@@ -149,6 +150,25 @@ class Lanelet2View:
                     found.add((key, self.key_of[neighbour.id], kind))
         return found
 
+    @cached_property
+    def _centre_line_owner(self) -> dict:
+        return {ll.centerline.id: key for key, ll in self.by_key.items()}
+
+    def sections_at(self, point) -> tuple[set, bool]:
+        """(the lane sections (road, section) whose lanelet bounds or centre lines hold ``point``, whether
+        one of them starts or ends there)."""
+        sections, end = set(), False
+        for way in self.map.lineStringLayer.findUsages(point):
+            # a lanelet against the way's direction holds it inverted, and only that finds it
+            owners = [self.key_of[ll.id] for line in (way, way.invert())
+                      for ll in self.map.laneletLayer.findUsages(line)]
+            owners += [self._centre_line_owner[way.id]] if way.id in self._centre_line_owner else []
+            if not owners:
+                continue  # a signal's way
+            end |= point.id in (way[0].id, way[-1].id)
+            sections |= {(key.road_index, key.section_index) for key in owners}
+        return sections, end
+
     def inside_out(self) -> set:
         return {key for key, ll in self.by_key.items() if "opendrive:inside_out" in ll.attributes}
 
@@ -220,7 +240,9 @@ def check_against_lanelet2(view: Lanelet2View, starts: int = 6) -> dict:
     assert compared == len(lanelet_of_row)
     to_ours, to_theirs = np.concatenate(to_ours), np.concatenate(to_theirs)
     assert to_ours.max() < CENTRE_TOLERANCE and to_theirs.max() < CENTRE_TOLERANCE
-    # (d) neighbours in a lane section share one bound way; no two nodes within 1 mm
+    # (d) neighbours in a lane section share one bound way; no two nodes within 1 mm but where a lane ends on
+    # a point of a section no link joins it to (one two-way street's road starts on the centre line where the
+    # other one ends, or passes by)
     shared = 0
     for key, ll in view.by_key.items():
         outward = key.lane_id + (1 if key.lane_id > 0 else -1)
@@ -234,11 +256,16 @@ def check_against_lanelet2(view: Lanelet2View, starts: int = 6) -> dict:
     from scipy.spatial import cKDTree
 
     layer = view.map.pointLayer
-    points = np.fromiter((c for p in layer for c in (p.x, p.y, p.z)), float, 3 * len(layer)).reshape(-1, 3)
-    assert len(cKDTree(points).query_pairs(1e-3)) == 0
+    point_list = list(layer)
+    points = np.fromiter((c for p in point_list for c in (p.x, p.y, p.z)), float, 3 * len(layer)).reshape(-1, 3)
+    close = cKDTree(points).query_pairs(1e-3, output_type="ndarray")
+    for i, j in close:
+        (a, a_ends), (b, b_ends) = view.sections_at(point_list[i]), view.sections_at(point_list[j])
+        assert (a_ends or b_ends) and not a & b, (a, a_ends, b, b_ends)
     return {"centre_max": float(max(to_ours.max(), to_theirs.max())),
             "centre_p99": float(np.percentile(np.concatenate([to_ours, to_theirs]), 99)),
             "shared_pairs": shared, "edges": len(mine), "missing_edges": len(missing),
+            "touching_lane_ends": len(close),
             "folded_centres": len(folded & {ours.row(k) for k in ours.keys})}
 
 
@@ -327,6 +354,50 @@ def test_synthetic_road(lanelet2, tmp_path, rule):
     # every node where our georeference puts it: the lane borders of a straight road along x
     border_y = view.to_local(np.array([[p.x, p.y, p.z] for p in border(0, -1, -2)]))[:, 1]
     assert border_y == pytest.approx(-3.25, abs=1e-3)
+
+
+def _end_to_end_roads(linked: bool) -> str:
+    """Roads 1 and 2 along x, 2 starting where 1 ends, each with lanes 1, -1, -2 (driving; widths equal, so
+    every lane end of road 1 touches one of road 2). Linked: the roads, lanes -1 and 1, not lane -2."""
+    def lanes(own: str) -> str:
+        link = (lambda lane_id: f'<link><{own} id="{lane_id}"/></link>') if linked else (lambda lane_id: "")
+        return f"""<laneSection s="0">
+          <left>{_lane(1, "driving", 3.5).replace('level="false">', 'level="false">' + link(1))}</left>
+          <center><lane id="0" type="none" level="false"/></center>
+          <right>{_lane(-1, "driving", 3.25).replace('level="false">', 'level="false">' + link(-1))}
+                 {_lane(-2, "driving", 3.25)}</right>
+        </laneSection>"""
+
+    def road_link(kind: str, other: str, contact: str) -> str:
+        return f'<link><{kind} elementType="road" elementId="{other}" contactPoint="{contact}"/></link>' \
+            if linked else ""
+
+    first = road_xml('<geometry s="0" x="0" y="0" hdg="0" length="50"><line/></geometry>', 50.0,
+                     lanes=lanes("successor"), road_id="1", link=road_link("successor", "2", "start"))
+    second = road_xml('<geometry s="0" x="50" y="0" hdg="0" length="50"><line/></geometry>', 50.0,
+                      lanes=lanes("predecessor"), road_id="2", link=road_link("predecessor", "1", "end"))
+    return document(first, second, header_extra=GEOREFERENCE)
+
+
+@pytest.mark.parametrize("linked", [False, True])
+def test_touching_lane_ends_follow_only_where_linked(lanelet2, tmp_path, linked):
+    """Lanelet2 reads a successor wherever a lanelet starts on the nodes another one ends on, so lane ends
+    that only touch must not share nodes (Columbus: two such edges among 155,528 roads): road 2 follows
+    road 1 in Lanelet2 exactly where the links say so, and the unlinked ends keep nodes of their own."""
+    xodr = tmp_path / "roads.xodr"
+    xodr.write_text(_end_to_end_roads(linked))
+    odr = load_opendrive(str(xodr))
+    view, _ = _export(lanelet2, odr, tmp_path, "roads")
+    check_against_lanelet2(view)
+    follows = {(a.road_index, a.lane_id, b.road_index, b.lane_id)
+               for a, b, kind in view.edges(view.by_key) if kind == "follow"}
+    assert follows == ({(0, -1, 1, -1), (1, 1, 0, 1)} if linked else set())
+    lane = {(key.road_index, key.lane_id): ll for key, ll in view.by_key.items()}
+    # the end of road 1's lane -2 and the start of road 2's: the same place, two nodes (one where linked)
+    end, start = lane[(0, -2)].rightBound[-1], lane[(1, -2)].rightBound[0]
+    assert end.id != start.id and np.hypot(end.x - start.x, end.y - start.y) < 1e-6
+    shared = lane[(0, -1)].rightBound[-1].id == lane[(1, -1)].rightBound[0].id
+    assert shared == linked
 
 
 def test_sample_build(lanelet2, sample_build_dir, tmp_path):
@@ -447,6 +518,36 @@ def test_merged_nodes_numbered_by_first_point():
     assert len(positions) == 300 + 9 and node_of[609] == node_of[0]
     assert np.array_equal(node_of[300:600], node_of[:300][::-1])
     assert positions[node_of[1]] == pytest.approx(base[1] + 0.1 * NODE_RADIUS)
+
+
+def test_merged_nodes_only_within_a_group():
+    """Coinciding points of two groups (two lane sections' lane ends) stay two nodes unless joined; a free
+    point (signal geometry) takes the nearest node and never bridges two groups; a node made of several
+    groups (joined lane ends) still takes a point of any of them that lies within the radius; nodes of
+    shared points only (no lane end) merge across groups."""
+    from tavf_mapkit.lanelet2_export.nodes import FREE, NODE_RADIUS, merge_points
+
+    r = NODE_RADIUS
+    points = np.array([[0, 0, 0], [0.2 * r, 0, 0],          # 0, 1: groups 0 and 1 at one place
+                       [10, 0, 0], [10 + 0.1 * r, 0, 0],    # 2, 3: groups 0 and 1, joined
+                       [10, 0.6 * r, 0],                    # 4: group 1 beside the joined node
+                       [0.1 * r, 0, 0],                     # 5: free, between 0 and 1
+                       [20, 0, 0], [20 + 0.5 * r, 0, 0],    # 6, 7: free, alone
+                       [30, 0, 0], [30, 0.5 * r, 0],        # 8, 9: shared, groups 0 and 1
+                       [40, 0, 0], [40, 0.5 * r, 0], [40, r, 0]], dtype=float)  # 10-12: shared 0, 1, not 1
+    group = np.array([0, 1, 0, 1, 1, FREE, FREE, FREE, 0, 1, 0, 1, 1])
+    shared = np.zeros(len(points), dtype=bool)
+    shared[[8, 9, 10, 11]] = True
+    node_of, positions = merge_points(points, np.array([[2, 3]]), group, shared)
+    assert node_of[0] != node_of[1] and node_of[5] in (node_of[0], node_of[1])
+    assert node_of[2] == node_of[3] == node_of[4]
+    assert node_of[6] == node_of[7]
+    assert node_of[8] == node_of[9]  # no lane end there: one node across sections
+    # 11 takes 12 (one section), so that node holds a lane end and stays apart from 10 (another section)
+    assert node_of[11] == node_of[12] != node_of[10] and len(positions) == 7
+    # without groups every coinciding point is one node, as before
+    node_of, _ = merge_points(points, np.array([[2, 3]]))
+    assert node_of[0] == node_of[1] == node_of[5]
 
 
 def test_runs_of_sections():

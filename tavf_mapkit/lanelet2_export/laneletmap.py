@@ -33,7 +33,7 @@ from tavf_mapkit.lanelet2_export.bounds import border_part, join_borders, outerm
 from tavf_mapkit.lanelet2_export.centreline import centre_lines, join_centre_lines
 from tavf_mapkit.lanelet2_export.folds import cut_folds
 from tavf_mapkit.lanelet2_export.mapping import is_vehicle_lane, lane_change_tags, lanelet_tags, line_tags
-from tavf_mapkit.lanelet2_export.nodes import merge_points
+from tavf_mapkit.lanelet2_export.nodes import FREE, merge_points
 from tavf_mapkit.lanelet2_export.orientation import give_private_bounds
 from tavf_mapkit.lanelet2_export.parts import PART_PAIRS, sample_in_parts
 from tavf_mapkit.lanelet2_export.regulatory import signal_elements
@@ -112,7 +112,7 @@ def build_lanelet_map(
     # -- points: borders (folds cut), our centre lines, signal geometry ----------------------------------
     lanelet_of = {key: i for i, key in enumerate(keys)}
     row_of = {key: int(row) for key, row in zip(keys, rows)}
-    joins, unjoined = _link_joins(odr, borders, row_of, arrays)
+    joins, unjoined = _link_joins(odr, borders, centre, lanelet_of, row_of, arrays)
     border_points, border_keep, _ = cut_folds(borders.points, borders.border, borders.tangent)
     untangle_sections(arrays, borders, border_points, border_keep, left, right, forward)
     elements = signal_elements(odr, lanelet_of)
@@ -126,7 +126,8 @@ def build_lanelet_map(
         offset += len(element.stop_points)
         parts += [element.refers_points, element.stop_points]
         element_points.append((refers, stop))
-    node_of, positions = merge_points(np.concatenate(parts), joins)
+    group, shared = _merge_groups(arrays, borders, centre, rows, offset - len(border_points) - len(centre.points))
+    node_of, positions = merge_points(np.concatenate(parts), joins, group, shared)
 
     # -- ways ---------------------------------------------------------------------------------------------
     used = np.unique(np.concatenate([left, right]))
@@ -170,7 +171,23 @@ def build_lanelet_map(
     laneletmap.private_bounds, laneletmap.turned = give_private_bounds(laneletmap)
 
     _add_regulatory_elements(laneletmap, elements, element_points, node_of, index_of)
+    _drop_unused_nodes(laneletmap)
     return laneletmap
+
+
+def _drop_unused_nodes(laneletmap: LaneletMap) -> None:
+    """Keep only the nodes some way holds, in their order: the samples that cutting folds and untangling
+    dropped are no points of the map (a fifth of the sample build's nodes)."""
+    if not laneletmap.way_nodes:
+        laneletmap.nodes = laneletmap.nodes[:0]
+        return
+    used = np.zeros(len(laneletmap.nodes), dtype=bool)
+    used[np.concatenate(laneletmap.way_nodes)] = True
+    if used.all():
+        return
+    renumbered = np.cumsum(used) - 1
+    laneletmap.nodes = laneletmap.nodes[used]
+    laneletmap.way_nodes = [renumbered[nodes] for nodes in laneletmap.way_nodes]
 
 
 def _add_regulatory_elements(
@@ -287,19 +304,52 @@ def _node_runs(
     return np.split(nodes[fresh], np.cumsum(np.bincount(run[fresh], minlength=len(first)))[:-1])
 
 
-def _link_joins(odr, borders, row_of: dict, arrays) -> tuple[np.ndarray, int]:
+def _merge_groups(arrays, borders, centre, rows: np.ndarray, n_signal_points: int):
+    """(group, shared) of every point for ``merge_points``: the group is the point's lane section (signal
+    points are free); shared are the points of borders and centre lines that are no lane end (not the first
+    or last point of one).
+
+    Lanelet2 makes a lanelet the successor of another where both corners of its start are the nodes of the
+    other's end, so only the links (``_link_joins``) may join lane ends of two sections. Points along the
+    borders still become one node across sections where they coincide (the shared centre line of a two-way
+    street that netconvert writes as two roads), but never with a lane end: through one, two unlinked lane
+    ends could still end up one node."""
+    section_of_border = np.concatenate([arrays.lane_section, np.arange(len(borders.start) - borders.n_lanes)])
+
+    def not_at_ends(start, count):
+        index = np.arange(int(count.sum())) - np.repeat(start, count)
+        return (index > 0) & (index < np.repeat(count, count) - 1)
+
+    used = borders.count > 0
+    group = np.concatenate([
+        section_of_border[borders.border],
+        np.repeat(arrays.lane_section[rows], centre.count),
+        np.full(n_signal_points, FREE),
+    ])
+    shared = np.concatenate([
+        not_at_ends(borders.start[used], borders.count[used]),
+        not_at_ends(centre.start, centre.count),
+        np.zeros(n_signal_points, dtype=bool),
+    ])
+    return group, shared
+
+
+def _link_joins(odr, borders, centre, lanelet_of: dict, row_of: dict, arrays) -> tuple[np.ndarray, int]:
     """(k, 2) point pairs to join: the corners of every pair of linked lane ends (matched by distance, since
     the inner border of one lane may meet the outer one of the next where a road's reference line changes
-    side), and how many linked pairs lay too far apart."""
-    a_rows, a_end, b_rows, b_end = [], [], [], []
+    side) and the ends of their centre lines (numbered after the border points), and how many linked pairs
+    lay too far apart. Only these pairs make one node of points of two lane sections."""
+    a_rows, a_end, b_rows, b_end, a_lanelet, b_lanelet = [], [], [], [], [], []
     for p, q in lane_end_pairs(odr):
         rp, rq = row_of.get(p[:3]), row_of.get(q[:3])
         if rp is None or rq is None:
             continue
         a_rows.append(rp)
         a_end.append(p[3] == "end")
+        a_lanelet.append(lanelet_of[p[:3]])
         b_rows.append(rq)
         b_end.append(q[3] == "end")
+        b_lanelet.append(lanelet_of[q[:3]])
     if not a_rows:
         return np.zeros((0, 2), dtype=np.int64), 0
 
@@ -321,7 +371,15 @@ def _link_joins(odr, borders, row_of: dict, arrays) -> tuple[np.ndarray, int]:
     swap = crossed < same
     b_first, b_second = np.where(swap, b_out, b_in), np.where(swap, b_in, b_out)
     ok = np.minimum(same, crossed) <= JOIN_TOLERANCE
-    joins = np.concatenate([np.column_stack([a_in, b_first])[ok], np.column_stack([a_out, b_second])[ok]])
+    def centre_end(lanelets, at_end):
+        lanelets = np.array(lanelets, dtype=np.int64)
+        return len(points) + centre.start[lanelets] + np.where(at_end, centre.count[lanelets] - 1, 0)
+
+    joins = np.concatenate([
+        np.column_stack([a_in, b_first])[ok],
+        np.column_stack([a_out, b_second])[ok],
+        np.column_stack([centre_end(a_lanelet, a_end), centre_end(b_lanelet, b_end)])[ok],
+    ])
     broken = {
         tuple(sorted(((r1, e1), (r2, e2))))
         for r1, e1, r2, e2, good in zip(a_rows, a_end, b_rows, b_end, ok)

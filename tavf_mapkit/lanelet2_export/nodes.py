@@ -1,9 +1,15 @@
-"""Points into OSM nodes: one node wherever points coincide, and one where the map's links join lane ends.
+"""Points into OSM nodes: one node where the map's links join lane ends, and one where points of a lane section
+coincide.
 
 Lanelet2 finds a lanelet's successor by node identity (the end points of its bounds are the start points of
 the next one's), and neighbours by way identity. So the corners of lane ends that the map links are made one
-node (they lie within micrometres of each other on a repaired build), and then any points closer than
-``radius`` become one node too, so no two nodes of the file coincide. A node sits at the mean of its points.
+node (``joins``: they lie within micrometres of each other on a repaired build), and otherwise points closer
+than ``radius`` become one node only within a group (the exporter's groups are lane sections): position alone
+never joins a lane end to another section -- else two lanes whose ends merely touch (Columbus: the two roads
+leaving a motorway split overlap where they start) would be successors in Lanelet2 that our lane graph does not
+have. Nodes without a lane end (``shared`` points only: the middle of the shared centre line of the two roads
+of a two-way street) are then merged across groups too: such a node makes no successor. A node sits at the mean
+of its points.
 """
 
 from __future__ import annotations
@@ -15,6 +21,10 @@ from scipy.spatial import cKDTree
 
 #: points closer than this are one node (m)
 NODE_RADIUS = 2e-3
+#: group of a point that belongs to no lane section (signal geometry): it takes the nearest node
+FREE = -1
+# a node's key for merging across nodes: its group, or one of these
+_SHARED, _MIXED = -2, -3
 
 
 def _components(n: int, pairs: np.ndarray) -> np.ndarray:
@@ -29,33 +39,77 @@ def _means(points: np.ndarray, label: np.ndarray, n: int) -> np.ndarray:
     return np.column_stack([np.bincount(label, weights=points[:, k], minlength=n) / counts for k in range(3)])
 
 
+def _node_keys(label: np.ndarray, group: np.ndarray, shared: np.ndarray, m: int) -> np.ndarray:
+    """Per node: ``_SHARED`` if all its points are shared ones, else its group if it has one group, else
+    ``_MIXED`` (lane ends of several sections joined by links). Nodes with one key may merge."""
+    low = np.full(m, np.iinfo(np.int64).max)
+    high = np.full(m, np.iinfo(np.int64).min)
+    np.minimum.at(low, label, group)
+    np.maximum.at(high, label, group)
+    key = np.where(low == high, low, _MIXED)
+    not_shared = np.bincount(label, weights=~shared, minlength=m)
+    return np.where(not_shared == 0, _SHARED, key)
+
+
 def merge_points(
-    points: np.ndarray, joins: np.ndarray, radius: float = NODE_RADIUS, max_rounds: int = 10
+    points: np.ndarray,
+    joins: np.ndarray,
+    group: np.ndarray | None = None,
+    shared: np.ndarray | None = None,
+    radius: float = NODE_RADIUS,
+    max_rounds: int = 10,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(node index of every point, (m, 3) node positions).
 
-    ``joins``: (k, 2) point indices that must become one node. Nodes are numbered in the order of their first
-    point, so the output does not depend on scipy's component numbering.
+    ``joins``: (k, 2) point indices that must become one node. ``group``: per point, the lane section it
+    belongs to (one group when not given): points closer than ``radius`` become one node within a group;
+    ``FREE`` points (signal geometry) take the nearest node within ``radius`` and otherwise merge with the
+    free points near them. ``shared``: per point, whether a node made of such points only may merge with
+    nodes of other groups that are made of them too (none when not given). Nodes are numbered in the order
+    of their first point, so the output does not depend on scipy's component numbering.
     """
     n = len(points)
     if not n:
         return np.zeros(0, dtype=np.int64), np.zeros((0, 3))
+    group = np.zeros(n, dtype=np.int64) if group is None else np.asarray(group, dtype=np.int64)
+    shared = np.zeros(n, dtype=bool) if shared is None else np.asarray(shared, dtype=bool)
     joins = np.asarray(joins, dtype=np.int64).reshape(-1, 2)
-    close = cKDTree(points).query_pairs(radius, output_type="ndarray")
-    label = _components(n, np.concatenate([joins, close]))
-    label = _first_order(label)
-    m = int(label.max()) + 1
-    positions = _means(points, label, m)
-    # a node at the mean of its points may come close to another one: merge again until none do
+    fixed = np.flatnonzero(group != FREE)
+    free = np.flatnonzero(group == FREE)
+
+    close = fixed[cKDTree(points[fixed]).query_pairs(radius, output_type="ndarray")].reshape(-1, 2)
+    close = close[group[close[:, 0]] == group[close[:, 1]]]
+    label = _first_order(_components(n, np.concatenate([joins, close]))[fixed])
+    m = int(label.max()) + 1 if len(label) else 0
+    positions = _means(points[fixed], label, m)
+    # nodes of shared points merge across groups; and a node at the mean of its points may come close to
+    # another one of its kind: merge again until none do. A node holding a lane end never merges with
+    # another section's by position, so none can bridge two sections' lane ends.
     for _ in range(max_rounds):
         close = cKDTree(positions).query_pairs(radius, output_type="ndarray")
+        key = _node_keys(label, group[fixed], shared[fixed], m)
+        close = close[(key[close[:, 0]] == key[close[:, 1]]) & (key[close[:, 0]] != _MIXED)]
         if not len(close):
             break
         merged = _first_order(_components(m, close))
         label = merged[label]
         m = int(merged.max()) + 1
-        positions = _means(points, label, m)
-    return label, positions
+        positions = _means(points[fixed], label, m)
+
+    node_of = np.empty(n, dtype=np.int64)
+    node_of[fixed] = label
+    if len(free):
+        # one nearest node each, never a bridge between sections; the rest are nodes of their own
+        taken = np.zeros(len(free), dtype=bool)
+        if m:
+            distance, nearest = cKDTree(positions).query(points[free])
+            taken = distance <= radius
+            node_of[free[taken]] = nearest[taken]
+        alone = free[~taken]
+        among = _components(len(alone), cKDTree(points[alone]).query_pairs(radius, output_type="ndarray"))
+        node_of[alone] = m + among
+    node_of = _first_order(node_of)
+    return node_of, _means(points, node_of, int(node_of.max()) + 1)
 
 
 def _first_order(label: np.ndarray) -> np.ndarray:

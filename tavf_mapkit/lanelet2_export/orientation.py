@@ -158,7 +158,7 @@ def give_private_bounds(laneletmap) -> tuple[int, int]:
             points = np.concatenate(
                 [_cross_section(middle, u, n, +half), _cross_section(middle, u, n, -half)]
             )
-            # a new point on an existing node is that node (no two nodes of the file coincide)
+            # a new point on an existing node is that node (no new node on an old one)
             distance, nearest = tree.query(points)
             new = distance > NODE_RADIUS
             ids = np.where(new, n_total + np.cumsum(new) - 1, nearest)
