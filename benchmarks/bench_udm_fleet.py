@@ -5,11 +5,14 @@ twin alone (issue 16: within 1.2x).
     $ .venv/bin/python benchmarks/bench_udm_fleet.py --twins 20 --duration 120 --build build/tavf-dlr
 
 Starts ``twin udm serve --map BUILD`` on a free loopback port (its own process), then
-``twin sweep --udm URL`` (every run at real time, --pace 1): first one seed alone, then ``--twins`` seeds on a
-LocalCluster of as many workers, so all twins drive at once against the same server. The latency is the twin's
-request latency (fix sent -> answer parsed) of every successful query, pooled over the runs from their
-udm_latency.csv; the ratio is the fleet's p95 over the lone twin's. The overlap column is the sum of the runs'
-wall times over the sweep's: near the number of twins when they really drove at the same time.
+``twin sweep --udm URL`` (every run at real time, --pace 1): one seed alone, then ``--twins`` seeds on a
+LocalCluster of as many workers, so all twins drive at once against the same server, then the one seed alone
+again. The latency is the twin's request latency (fix sent -> answer parsed) of every successful query, pooled
+over the runs from their udm_latency.csv; the ratio is the fleet's p95 over the lone twin's, whose queries are
+pooled from before and after the fleet: on a machine shared with other jobs their load drifts within minutes,
+and a lone run on one side of the fleet only would put all of that drift into the ratio (both lone runs' p95
+are printed). The overlap column is the sum of the runs' wall times over the sweep's: near the number of twins
+when they really drove at the same time.
 
 Where the latency goes: every query's row has the server's own time (its Server-Timing header: request reached
 the app -> answer ready) and the client's wait for a core during the request (schedstat); the rest is the
@@ -22,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import importlib.util
 import json
 import os
 import subprocess
@@ -147,11 +151,12 @@ def sweep(build: Path, url: str, twins: int, duration: float, out: Path, server_
     start, end = max(span[0] for span in spans), min(span[1] for span in spans)
     inside = (sent >= start) & (sent <= end)
     steady = values[inside]
-    parts = {}
+    samples = {}  # the queries the parts describe, kept so lone runs can be pooled (pooled_alone)
     for name, series in (("request", values), ("server", np.asarray(server_ms)), ("client_wait", np.asarray(wait_ms)),
                          ("rest", np.asarray(rest_ms))):
         part = series[inside] if twins > 1 else series  # a lone twin: its whole run
-        parts[name] = percentiles([value for value in part if np.isfinite(value)])
+        samples[name] = [float(value) for value in part if np.isfinite(value)]
+    parts = {name: percentiles(series) for name, series in samples.items()}
     crowding = bursts(np.asarray(all_sent), sent, values, inside) if twins > 1 else None
     window = sampler.between(start, end) if twins > 1 else sampler.between(spans[0][0], spans[0][1])
     if window:
@@ -161,7 +166,8 @@ def sweep(build: Path, url: str, twins: int, duration: float, out: Path, server_
         window["server_cpu_ms_per_request"] = 1000 * window["server_cpu_s"] / max(1, served)
         window["server_wait_ms_per_request"] = 1000 * window["server_wait_s"] / max(1, served)
         window["server_preempted_per_request"] = window["server_preempted"] / max(1, served)
-    return {"twins": twins, "wall_s": wall, "queries": len(values), "parts": parts, "window": window,
+    return {"twins": twins, "wall_s": wall, "queries": len(values), "parts": parts, "samples": samples,
+            "window": window,
             "p50_ms": float(np.percentile(values, 50)), "p95_ms": float(np.percentile(values, 95)),
             "p99_ms": float(np.percentile(values, 99)),
             "all_driving_s": max(0.0, end - start), "all_driving_queries": len(steady),
@@ -169,6 +175,22 @@ def sweep(build: Path, url: str, twins: int, duration: float, out: Path, server_
             "overlap": sum(run["wall_s"] for run in runs) / wall,
             "ok": report["summary"]["ok"], "errors": sum(run["udm_errors"] or 0 for run in runs),
             "rtf": [run["real_time_factor"] for run in runs]}
+
+
+def pooled_alone(runs: list[dict]) -> dict:
+    """The lone twin's runs as one: their queries pooled for the percentiles and the parts, their windows and
+    real-time factors side by side."""
+    samples = {name: [value for run in runs for value in run["samples"][name]] for name in runs[0]["samples"]}
+    latency = samples["request"]
+    return {"twins": 1, "wall_s": sum(run["wall_s"] for run in runs), "queries": len(latency),
+            "parts": {name: percentiles(series) for name, series in samples.items()}, "samples": samples,
+            "windows": [run["window"] for run in runs],
+            "p50_ms": float(np.percentile(latency, 50)), "p95_ms": float(np.percentile(latency, 95)),
+            "p99_ms": float(np.percentile(latency, 99)), "all_driving_s": sum(run["all_driving_s"] for run in runs),
+            "all_driving_queries": len(latency), "all_driving_p95_ms": float(np.percentile(latency, 95)),
+            "bursts": None, "overlap": 1.0, "ok": sum(run["ok"] for run in runs),
+            "errors": sum(run["errors"] for run in runs), "rtf": [rtf for run in runs for rtf in run["rtf"]],
+            "runs_p95_ms": [run["p95_ms"] for run in runs]}
 
 
 def bursts(every_sent: np.ndarray, sent: np.ndarray, latency: np.ndarray, inside: np.ndarray) -> dict | None:
@@ -207,11 +229,11 @@ def print_breakdown(alone: dict, fleet: dict) -> None:
         print(f"{fleet['twins']} twins: {100 * crowding['share']:.0f} % of the requests were sent within "
               f"{crowding['window_ms']:.0f} ms after another twin's (p95 {crowding['crowded_p95_ms'] or float('nan'):.2f} ms; "
               f"the others {crowding['alone_p95_ms'] or float('nan'):.2f} ms)")
-    for row in (alone, fleet):
-        window = row["window"]
+    windows = [(f"1 twin, {when}", window) for when, window in zip(("before", "after"), alone["windows"])]
+    for name, window in [*windows, (f"{fleet['twins']} twins", fleet["window"])]:
         if not window:
             continue
-        print(f"{row['twins']:>3} twin(s), {window['s']:.0f} s: server process {window['server_cpu_ms_per_request']:.2f} ms "
+        print(f"{name}, {window['s']:.0f} s: server process {window['server_cpu_ms_per_request']:.2f} ms "
               f"CPU, {window['server_wait_ms_per_request']:.2f} ms waiting for a core and "
               f"{window['server_preempted_per_request']:.2f} preemptions per request "
               f"({window['requests']} requests); machine {window['busy_cores']:.2f} of {os.cpu_count()} cores busy, "
@@ -225,6 +247,10 @@ def main() -> int:
     parser.add_argument("--duration", type=float, default=60.0)
     args = parser.parse_args()
     print("load average before:", " ".join(Path("/proc/loadavg").read_text().split()[:3]), flush=True)
+    # uvicorn picks httptools and uvloop by itself when they are installed (uvicorn[standard]); the server
+    # runs in this interpreter's environment, so what is importable here is what it parses HTTP with
+    fast = all(importlib.util.find_spec(name) for name in ("httptools", "uvloop"))
+    print("UDM server's HTTP:", "httptools on uvloop" if fast else "h11 on asyncio (uvicorn[standard] not installed)")
     with tempfile.TemporaryDirectory(prefix="bench-udm-fleet-") as scratch:
         scratch = Path(scratch)
         build = args.build
@@ -234,11 +260,13 @@ def main() -> int:
                            capture_output=True)
         server, url = start_server(build)
         try:
-            alone = sweep(build, url, 1, args.duration, scratch / "alone", server.pid)
+            before = sweep(build, url, 1, args.duration, scratch / "alone-before", server.pid)
             fleet = sweep(build, url, args.twins, args.duration, scratch / "fleet", server.pid)
+            after = sweep(build, url, 1, args.duration, scratch / "alone-after", server.pid)
         finally:
             server.terminate()
             server.wait(10)
+    alone = pooled_alone([before, after])
     ratio = fleet["p95_ms"] / alone["p95_ms"]
     steady = fleet["all_driving_p95_ms"]
     print(f"\n{'twins':>5} {'queries':>8} {'p50 ms':>7} {'p95 ms':>7} {'p99 ms':>7} {'errors':>6} {'overlap':>7} "
@@ -248,12 +276,15 @@ def main() -> int:
               f"{row['p99_ms']:>7.2f} {row['errors']:>6} {row['overlap']:>7.1f} {row['all_driving_s']:>13.1f} "
               f"{row['all_driving_queries']:>8} {row['all_driving_p95_ms'] or float('nan'):>9.2f}  "
               f"{min(row['rtf']):.2f}-{max(row['rtf']):.2f}")
+    print(f"(1 twin: p95 {before['p95_ms']:.2f} ms before the fleet, {after['p95_ms']:.2f} ms after; pooled above)")
     verdict = "ok" if ratio <= TARGET else "MISS"
     print(f"\np95 of {args.twins} twins at once / one twin alone: {ratio:.2f}x over the whole sweep, "
           + (f"{steady / alone['p95_ms']:.2f}x while all drive" if steady else "never all driving at once")
           + f" (target <= {TARGET}x) {verdict}")
     print_breakdown(alone, fleet)
     print("load average after:", " ".join(Path("/proc/loadavg").read_text().split()[:3]))
+    for row in (alone, fleet):
+        row.pop("samples")
     print(json.dumps({"alone": alone, "fleet": fleet, "ratio_p95": ratio}, indent=1))
     return 0
 
