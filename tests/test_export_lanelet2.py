@@ -589,6 +589,35 @@ def test_private_bounds_of_several_lanelets():
     assert all(ll["tags"] == {"opendrive:inside_out": "yes"} for ll in lanelets)
 
 
+def test_private_bounds_of_an_inside_out_u_turn():
+    """Columbus's last turned lanelet (road 187692, a 4.3 m single-lane U-turn in junction 1652, its bounds
+    thinned): the lane is wider than the turn's radius, so its inner bound folds back on itself and its outer
+    one sweeps round the other side; in its middle the lane's own direction points back (-x) while it drives
+    from its start (heading -y) to its end (+y) along +x. Only a cross-section square to that chord passes
+    the loader's test."""
+    from tavf_mapkit.lanelet2_export.laneletmap import LaneletMap
+    from tavf_mapkit.lanelet2_export.orientation import give_private_bounds, turned_lanelets
+
+    left = [[0.0, 0.0], [-0.29, -1.65], [-0.34, -1.84], [-0.36, -1.88], [-0.38, -1.89], [-0.4, -1.87],
+            [-0.41, -1.83], [-0.42, -1.63], [-0.36, 0.44]]
+    right = [[-3.96, 0.59], [-4.18, -0.72], [-4.05, -0.34], [-3.66, 0.37], [-2.81, 1.28], [-1.49, 1.95],
+             [0.94, 1.88], [2.43, 0.95], [3.15, -0.02], [3.49, -0.91], [3.57, -1.43], [3.59, -0.78], [3.63, 0.23]]
+    nodes = np.column_stack([np.array(left + right), np.zeros(len(left) + len(right))])
+    lanelet = {"left": 0, "right": 1, "forward": True, "heading": 3.0169, "middle": np.array([-0.13, 0.09, 0.0]),
+               "tags": {}, "regulatory": []}
+    laneletmap = LaneletMap(nodes, [np.arange(len(left)), np.arange(len(left), len(nodes))],
+                            [{"type": "virtual"}] * 2, [lanelet])
+    assert turned_lanelets(laneletmap) == [0]
+    assert give_private_bounds(laneletmap) == (1, 0)
+    assert turned_lanelets(laneletmap) == []
+    left_bound = laneletmap.nodes[laneletmap.way_nodes[lanelet["left"]]]
+    right_bound = laneletmap.nodes[laneletmap.way_nodes[lanelet["right"]]]
+    # the corners stay (successors), the cross-section runs along +x with the left bound on +y
+    assert np.array_equal(left_bound[[0, -1]], nodes[[0, len(left) - 1]])
+    assert np.array_equal(right_bound[[0, -1]], nodes[[len(left), len(nodes) - 1]])
+    assert left_bound[2, 0] > left_bound[1, 0] and left_bound[2, 1] > right_bound[2, 1]
+
+
 def test_cli_errors(tmp_path, lanelet2):
     xodr = tmp_path / "synthetic.xodr"
     xodr.write_text(synthetic_xodr())

@@ -178,16 +178,16 @@ def build_lanelet_map(
 def _drop_unused_nodes(laneletmap: LaneletMap) -> None:
     """Keep only the nodes some way holds, in their order: the samples that cutting folds and untangling
     dropped are no points of the map (a fifth of the sample build's nodes)."""
-    if not laneletmap.way_nodes:
-        laneletmap.nodes = laneletmap.nodes[:0]
-        return
     used = np.zeros(len(laneletmap.nodes), dtype=bool)
-    used[np.concatenate(laneletmap.way_nodes)] = True
+    for nodes in laneletmap.way_nodes:  # a region's ways hold ten million node references: no copy of all
+        used[nodes] = True
     if used.all():
         return
     renumbered = np.cumsum(used) - 1
     laneletmap.nodes = laneletmap.nodes[used]
-    laneletmap.way_nodes = [renumbered[nodes] for nodes in laneletmap.way_nodes]
+    way_nodes = laneletmap.way_nodes
+    for k, nodes in enumerate(way_nodes):
+        way_nodes[k] = renumbered[nodes]
 
 
 def _add_regulatory_elements(
@@ -315,22 +315,19 @@ def _merge_groups(arrays, borders, centre, rows: np.ndarray, n_signal_points: in
     street that netconvert writes as two roads), but never with a lane end: through one, two unlinked lane
     ends could still end up one node."""
     section_of_border = np.concatenate([arrays.lane_section, np.arange(len(borders.start) - borders.n_lanes)])
-
-    def not_at_ends(start, count):
-        index = np.arange(int(count.sum())) - np.repeat(start, count)
-        return (index > 0) & (index < np.repeat(count, count) - 1)
-
-    used = borders.count > 0
     group = np.concatenate([
         section_of_border[borders.border],
         np.repeat(arrays.lane_section[rows], centre.count),
         np.full(n_signal_points, FREE),
-    ])
-    shared = np.concatenate([
-        not_at_ends(borders.start[used], borders.count[used]),
-        not_at_ends(centre.start, centre.count),
-        np.zeros(n_signal_points, dtype=bool),
-    ])
+    ]).astype(np.int32)
+    n_border_points = len(borders.points)
+    shared = np.ones(len(group), dtype=bool)
+    shared[n_border_points + len(centre.points):] = False
+    sampled = borders.count > 0
+    for first, count in ((borders.start[sampled], borders.count[sampled]),
+                         (n_border_points + centre.start, centre.count)):
+        shared[first] = False
+        shared[first + count - 1] = False
     return group, shared
 
 

@@ -42,13 +42,14 @@ def _means(points: np.ndarray, label: np.ndarray, n: int) -> np.ndarray:
 def _node_keys(label: np.ndarray, group: np.ndarray, shared: np.ndarray, m: int) -> np.ndarray:
     """Per node: ``_SHARED`` if all its points are shared ones, else its group if it has one group, else
     ``_MIXED`` (lane ends of several sections joined by links). Nodes with one key may merge."""
-    low = np.full(m, np.iinfo(np.int64).max)
-    high = np.full(m, np.iinfo(np.int64).min)
+    low = np.full(m, np.iinfo(np.int32).max, dtype=np.int32)
+    high = np.full(m, np.iinfo(np.int32).min, dtype=np.int32)
     np.minimum.at(low, label, group)
     np.maximum.at(high, label, group)
     key = np.where(low == high, low, _MIXED)
-    not_shared = np.bincount(label, weights=~shared, minlength=m)
-    return np.where(not_shared == 0, _SHARED, key)
+    del high
+    key[np.bincount(label[~shared], minlength=m) == 0] = _SHARED
+    return key
 
 
 def merge_points(
@@ -71,43 +72,51 @@ def merge_points(
     n = len(points)
     if not n:
         return np.zeros(0, dtype=np.int64), np.zeros((0, 3))
-    group = np.zeros(n, dtype=np.int64) if group is None else np.asarray(group, dtype=np.int64)
+    group = np.zeros(n, dtype=np.int32) if group is None else np.asarray(group)
     shared = np.zeros(n, dtype=bool) if shared is None else np.asarray(shared, dtype=bool)
     joins = np.asarray(joins, dtype=np.int64).reshape(-1, 2)
-    fixed = np.flatnonzero(group != FREE)
     free = np.flatnonzero(group == FREE)
+    # the others, as a view where the free points come last (the exporter's signal points): a region has
+    # ten million points
+    tail = len(free) == 0 or free[0] == n - len(free)
+    fixed = slice(0, n - len(free)) if tail else np.flatnonzero(group != FREE)
+    fixed_points, fixed_group, fixed_shared = points[fixed], group[fixed], shared[fixed]
 
-    close = fixed[cKDTree(points[fixed]).query_pairs(radius, output_type="ndarray")].reshape(-1, 2)
-    close = close[group[close[:, 0]] == group[close[:, 1]]]
-    label = _first_order(_components(n, np.concatenate([joins, close]))[fixed])
+    close = cKDTree(fixed_points).query_pairs(radius, output_type="ndarray")
+    close = close[fixed_group[close[:, 0]] == fixed_group[close[:, 1]]]
+    if not tail:
+        joins = np.searchsorted(fixed, joins)  # joins are between fixed points: their numbers among them
+    label = _first_order(_components(len(fixed_points), np.concatenate([joins, close])))
+    del close
     m = int(label.max()) + 1 if len(label) else 0
-    positions = _means(points[fixed], label, m)
+    positions = _means(fixed_points, label, m)
     # nodes of shared points merge across groups; and a node at the mean of its points may come close to
     # another one of its kind: merge again until none do. A node holding a lane end never merges with
     # another section's by position, so none can bridge two sections' lane ends.
     for _ in range(max_rounds):
         close = cKDTree(positions).query_pairs(radius, output_type="ndarray")
-        key = _node_keys(label, group[fixed], shared[fixed], m)
+        key = _node_keys(label, fixed_group, fixed_shared, m)
         close = close[(key[close[:, 0]] == key[close[:, 1]]) & (key[close[:, 0]] != _MIXED)]
         if not len(close):
             break
         merged = _first_order(_components(m, close))
         label = merged[label]
         m = int(merged.max()) + 1
-        positions = _means(points[fixed], label, m)
+        positions = _means(fixed_points, label, m)
 
+    if not len(free):
+        return label, positions
     node_of = np.empty(n, dtype=np.int64)
     node_of[fixed] = label
-    if len(free):
-        # one nearest node each, never a bridge between sections; the rest are nodes of their own
-        taken = np.zeros(len(free), dtype=bool)
-        if m:
-            distance, nearest = cKDTree(positions).query(points[free])
-            taken = distance <= radius
-            node_of[free[taken]] = nearest[taken]
-        alone = free[~taken]
-        among = _components(len(alone), cKDTree(points[alone]).query_pairs(radius, output_type="ndarray"))
-        node_of[alone] = m + among
+    del label
+    # free points: one nearest node each, never a bridge between sections; the rest are nodes of their own
+    taken = np.zeros(len(free), dtype=bool)
+    if m:
+        distance, nearest = cKDTree(positions).query(points[free])
+        taken = distance <= radius
+        node_of[free[taken]] = nearest[taken]
+    alone = free[~taken]
+    node_of[alone] = m + _components(len(alone), cKDTree(points[alone]).query_pairs(radius, output_type="ndarray"))
     node_of = _first_order(node_of)
     return node_of, _means(points, node_of, int(node_of.max()) + 1)
 

@@ -118,8 +118,9 @@ def give_private_bounds(laneletmap) -> tuple[int, int]:
     cross-section at the middle of the lanelet, square to its driving direction there (the reference line's,
     which stays sane where the lane does not): ``[start, m - e*u, m, m + e*u, end]`` on each side, the
     loader's middle points m straight across from each other. The first cross-section the loader reads right
-    is taken: at our lane centre in the middle of the section, at the middle of the corners, a quarter of the
-    length ahead or behind; from the lane's own width down to 5 cm. The lanelet loses only the shared way to
+    is taken (``_cross_sections``): at our lane centre in the middle of the section, at the middle of the
+    corners, a quarter of the length ahead or behind; from the lane's own width down to 5 cm; square to the
+    lane's direction, then to the chord between its ends. The lanelet loses only the shared way to
     its neighbours, i.e. lane changes there. Returns (lanelets given private bounds, lanelets still turned).
     """
     turned = turned_lanelets(laneletmap)
@@ -146,14 +147,10 @@ def give_private_bounds(laneletmap) -> tuple[int, int]:
         a, b = (left[0], left[-1]) if forward else (left[-1], left[0])
         c, d = (right[0], right[-1]) if forward else (right[-1], right[0])
         nodes = original
-        centre = 0.25 * (nodes[a] + nodes[b] + nodes[c] + nodes[d])
-        u = np.array([np.cos(lanelet["heading"]), np.sin(lanelet["heading"])])
-        n = np.array([-u[1], u[0]])
         width = 0.5 * (np.hypot(*(nodes[a] - nodes[c])[:2]) + np.hypot(*(nodes[b] - nodes[d])[:2]))
         length = 0.5 * (np.hypot(*(nodes[b] - nodes[a])[:2]) + np.hypot(*(nodes[d] - nodes[c])[:2]))
-        middles = [np.asarray(lanelet["middle"], dtype=float)]
-        middles += [centre + np.append(shift * length * u, 0.0) for shift in (0.0, 0.25, -0.25)]
-        for middle, half in itertools.product(middles, (0.5, 0.25, 0.1, 0.02)):
+        for u, middle, half in _cross_sections(lanelet, nodes[a], nodes[b], nodes[c], nodes[d], length):
+            n = np.array([-u[1], u[0]])
             half = max(half * width, 0.05)
             points = np.concatenate(
                 [_cross_section(middle, u, n, +half), _cross_section(middle, u, n, -half)]
@@ -184,6 +181,23 @@ def give_private_bounds(laneletmap) -> tuple[int, int]:
         fixed += 1
     laneletmap.nodes = np.concatenate([original, *added])
     return fixed, len(turned) - fixed
+
+
+def _cross_sections(lanelet: dict, a, b, c, d, length: float):
+    """(driving direction u, middle point, half width as a share of the lane's) of the cross-sections to try,
+    best first: square to the lane's direction in its middle, then square to the chord from the middle of its
+    start to the middle of its end (a lane of a U-turn that is wider than the turn's radius runs inside out
+    in its middle, so its own direction there points back: Columbus, road 187692)."""
+    centre = 0.25 * (a + b + c + d)
+    chord = 0.5 * (b + d - a - c)[:2]
+    directions = [np.array([np.cos(lanelet["heading"]), np.sin(lanelet["heading"])])]
+    if np.hypot(*chord) > 0:
+        directions.append(chord / np.hypot(*chord))
+    for u in directions:
+        middles = [np.asarray(lanelet["middle"], dtype=float)]
+        middles += [centre + np.append(shift * length * u, 0.0) for shift in (0.0, 0.25, -0.25)]
+        for middle, half in itertools.product(middles, (0.5, 0.25, 0.1, 0.02)):
+            yield u, middle, half
 
 
 def _positions(original: np.ndarray, fresh: np.ndarray, first_fresh: int, ids: np.ndarray) -> np.ndarray:
