@@ -57,6 +57,8 @@ INPUTS = {  # name -> (what, source); source None: netconvert's raw OpenDRIVE of
     "melbourne": ("zoo Melbourne OSM, build", SHARED / "zoo" / "osm" / "AU_melbourne_arterials_LHT.osm.pbf"),
     # the largest extents: CARLA's single-precision floats show most there
     "bayreuth": ("zoo Bayreuth OSM, build", SHARED / "zoo" / "osm" / "DE_bayreuth_north.osm.gz"),
+    # a whole small country; road 18894 turns back on itself through a hairpin of 0.03 mm radius (a near-cusp)
+    "andorra": ("zoo Andorra OSM, build", SHARED / "zoo" / "osm" / "AD_andorra.osm.pbf"),
     "tavf-raw": ("DLR TAVF net, raw netconvert", None),
 }
 PEER_OF = {"asam_qc": "qc", "asam_qc_1.8": "qc"}

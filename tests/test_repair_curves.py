@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+import tavf_mapkit.opendrive.repair_curves as repair_curves_module
 from tavf_mapkit.opendrive import load_opendrive
 from tavf_mapkit.opendrive.geometry import GeometryKind, param_poly3_length
 from tavf_mapkit.opendrive.reader import loads_opendrive
-import tavf_mapkit.opendrive.repair_curves as repair_curves_module
 from tavf_mapkit.opendrive.repair_curves import (
     CURVE_AS_ARCS,
     KEPT_CURVE,
@@ -26,6 +26,7 @@ from tavf_mapkit.opendrive.repair_curves import (
     TOLERANCE,
     repair_curves,
 )
+from tavf_mapkit.opendrive.repair_lengths import repair_geometry_lengths
 from tavf_mapkit.opendrive.repair_redundant import MERGED_RECORDS
 from tavf_mapkit.opendrive.sampling import sample_lanes
 from tavf_mapkit.opendrive.writer import to_xml, write_opendrive
@@ -279,3 +280,66 @@ def test_a_build_writes_arcs_by_default_and_keeps_curves_when_told(kept_build, t
     assert opendrive["facts"]["repairs"][CURVE_AS_ARCS]["count"] > 0
     assert _kinds(load_opendrive(out / "sample.xodr")) <= {GeometryKind.LINE, GeometryKind.ARC}
 
+
+
+#: netconvert's paramPoly3 of Andorra road 18894 (normalized, 5.73 m): it runs out 5.6 m and turns back on itself
+#: through a hairpin of ~0.03 mm radius (|c'| falls to 0.03 of its usual 3-30 at p = 0.917)
+NEAR_CUSP = (0.0, 3.0, 13.47306636, -10.98192391, 0.0, -0.0, -0.04356617, 0.04455690)
+
+
+def _exact_length(pp3, p_end: float = 1.0) -> float:
+    """Arc length by adaptive quadrature (scipy), with break points closing in on the speed's extrema (roots of
+    d|c'|^2/dp, a cubic) by powers of ten: there |c'| is nearly |p - p*| times a constant."""
+    import warnings
+    from itertools import pairwise
+
+    from scipy.integrate import quad
+
+    _, bu, cu, du, _, bv, cv, dv = pp3
+
+    def speed(p):
+        return np.hypot(bu + p * (2 * cu + 3 * du * p), bv + p * (2 * cv + 3 * dv * p))
+
+    first = np.polynomial.Polynomial([bu, 2 * cu, 3 * du]), np.polynomial.Polynomial([bv, 2 * cv, 3 * dv])
+    slope = first[0] * first[0].deriv() + first[1] * first[1].deriv()
+    extrema = [r.real for r in slope.roots() if abs(r.imag) < 1e-12 and 0.0 < r.real < p_end]
+    edges = sorted({0.0, p_end, *extrema} | {min(max(r + side * 10.0 ** -k, 0.0), p_end)
+                                             for r in extrema for k in range(1, 16) for side in (-1, 1)})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # quad's roundoff notice on panels of 1e-15
+        return sum(quad(speed, a, b, epsabs=1e-17, epsrel=1e-13, limit=200)[0]
+                   for a, b in pairwise(edges))
+
+
+@pytest.mark.parametrize("scale", [1.0, 1e-2, 1e-4, 0.0])
+def test_a_near_cusps_length_is_exact(scale):
+    """The reader's arc-length table (uniform 16-node panels) was 4e-5 m off on Andorra's near-cusp: the @length
+    repair wrote that, and the curve repair then found @length longer than the curve and kept the paramPoly3
+    (libOpenDRIVE read it 4.9 mm off). Panels now close in on such a dip; sharper dips down to a true cusp too."""
+    pp3 = NEAR_CUSP[:6] + (NEAR_CUSP[6] * scale, NEAR_CUSP[7] * scale)
+    length = float(param_poly3_length(np.array([pp3 + (1.0,)]), np.array([1.0]))[0])
+    assert abs(length - _exact_length(pp3)) < 1e-11
+
+
+def test_a_near_cusp_on_an_ordinary_road_becomes_arcs():
+    """Andorra road 18894 through the build's repairs in order (@length, then curves): @length becomes the exact
+    arc length, the curve becomes arcs whose lane borders stay within the tolerance, evaluated at s both ways."""
+    uv = " ".join(f'{k}="{v!r}"' for k, v in zip(("aU", "bU", "cU", "dU", "aV", "bV", "cV", "dV"), NEAR_CUSP))
+    lanes = """<laneSection s="0"><center><lane id="0" type="none" level="false"/></center><right>
+        <lane id="-1" type="driving" level="false"><width sOffset="0" a="3.2" b="0" c="0" d="0"/></lane>
+        </right></laneSection>"""
+    geometry = (f'<geometry s="0" x="0" y="0" hdg="0.97019618" length="5.73124449"><paramPoly3 {uv} '
+                'pRange="normalized"/></geometry>')
+    odr = loads_opendrive(document(road_xml(geometry, 5.73124449, lanes)))
+    lengthened, _ = repair_geometry_lengths(odr)
+    exact = _exact_length(NEAR_CUSP)
+    assert abs(lengthened.roads[0].reference_line.geometries[0].length - exact) < 1e-11
+    repaired, repairs = repair_curves(lengthened)
+    assert [r.action for r in repairs] == [CURVE_AS_ARCS], [str(r) for r in repairs]
+    assert _kinds(repaired) <= {GeometryKind.LINE, GeometryKind.ARC}
+    after = repaired.roads[0].reference_line
+    s = np.linspace(0.0, exact, 20_001)
+    for t in (0.0, -3.2):
+        moved = np.linalg.norm(_offset_points(lengthened.roads[0].reference_line, s, t)
+                               - _offset_points(after, s, t), axis=1)
+        assert moved.max() <= TOLERANCE, (t, moved.max())

@@ -306,19 +306,97 @@ _LOCAL_NODES, _LOCAL_WEIGHTS = np.polynomial.legendre.leggauss(10)
 
 def _arc_length_table(speed, p_end: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(edges, table): per curve with |c'(p)| = speed(rows, p), 16 panel edges over [0, p_end] and the arc length
-    up to each (16-node Gauss-Legendre per panel); ``table[:, -1]`` is the curve's length."""
+    up to each (16-node Gauss-Legendre per panel); ``table[:, -1]`` is the curve's length.
+
+    The edges are uniform, except around a near-cusp (``_dip_edges``): there |c'| is nearly |p - p*| times a
+    constant, which one 16-node panel integrates only to ~1e-5 (Andorra road 18894: a 5.73 m curve 0.04 mm off,
+    so its @length was "repaired" wrong and its arcs refused)."""
     edges = np.linspace(0.0, 1.0, _TABLE_PANELS + 1)[None, :] * p_end[:, None]  # (curves, panels+1)
+    panel_lengths = np.empty((len(p_end), _TABLE_PANELS))
+    slowest, fastest, slowest_node = _panel_lengths_into(speed, edges, panel_lengths, with_extremes=True)
+    # a curve whose speed falls well below its top somewhere may be a near-cusp; only those are looked at again
+    candidates = np.flatnonzero(slowest < _DIP_RATIO * fastest)
+    if len(candidates):
+        graded = _dip_edges(speed, candidates, p_end[candidates], slowest_node[candidates])
+        if graded is not None:
+            rows, row_edges = graded
+            sub = np.empty((len(rows), _TABLE_PANELS))
+            _panel_lengths_into(lambda r, p: speed(rows[r], p), row_edges, sub)
+            # where the uniform panels had the length to a nanometre anyway they stay: the curve reads as it did
+            off = np.abs(sub.sum(axis=1) - panel_lengths[rows].sum(axis=1)) > _DIP_GAIN
+            edges[rows[off]] = row_edges[off]
+            panel_lengths[rows[off]] = sub[off]
+    return edges, np.concatenate([np.zeros((len(p_end), 1)), np.cumsum(panel_lengths, axis=1)], axis=1)
+
+
+#: a curve whose slowest table node is slower than this share of its fastest is checked for a near-cusp
+_DIP_RATIO = 0.25
+#: the closing-in panels replace the uniform ones of a curve only where its length moves by more than this (m)
+_DIP_GAIN = 1e-9
+_GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
+
+
+def _panel_lengths_into(speed, edges: np.ndarray, out: np.ndarray, with_extremes: bool = False):
+    """Fill ``out`` (curves, panels) with each panel's arc length (16-node Gauss-Legendre); with_extremes:
+    also return per curve the slowest and fastest node speed and where the slowest node lies (its p)."""
     half = 0.5 * (edges[:, 1:] - edges[:, :-1])
-    panel_lengths = np.empty_like(half)
+    extremes = (np.empty(len(edges)), np.empty(len(edges)), np.empty(len(edges))) if with_extremes else None
     # in batches of curves: 256 nodes per curve and their temporaries would take GBs on a city's curves at once
     # (each row's sum is the same whatever batch it is in)
-    for first in range(0, len(p_end), _CURVES_PER_BATCH):
+    for first in range(0, len(edges), _CURVES_PER_BATCH):
         batch = slice(first, first + _CURVES_PER_BATCH)
         nodes = edges[batch, :-1, None] + half[batch, :, None] * (_GL_NODES[None, None, :] + 1.0)
         curves = np.arange(first, first + len(nodes))
-        panel_lengths[batch] = (speed(curves[:, None, None], nodes) * _GL_WEIGHTS[None, None, :]).sum(axis=2) \
-            * half[batch]
-    return edges, np.concatenate([np.zeros((len(p_end), 1)), np.cumsum(panel_lengths, axis=1)], axis=1)
+        values = speed(curves[:, None, None], nodes)
+        out[batch] = (values * _GL_WEIGHTS[None, None, :]).sum(axis=2) * half[batch]
+        if extremes is not None:
+            flat, flat_nodes = values.reshape(len(nodes), -1), nodes.reshape(len(nodes), -1)
+            at = flat.argmin(axis=1)
+            extremes[0][batch], extremes[1][batch] = flat[np.arange(len(nodes)), at], flat.max(axis=1)
+            extremes[2][batch] = flat_nodes[np.arange(len(nodes)), at]
+    return extremes
+
+
+def _dip_edges(speed, rows: np.ndarray, p_end: np.ndarray, near: np.ndarray):
+    """(rows, edges) of the curves among ``rows`` whose speed has a dip narrower than a table panel, with panel
+    edges that close in on the dip geometrically from both sides (each panel about twice as far from it as the
+    one before: 16 nodes then integrate to double precision), or None when there is no such curve.
+
+    The dip's bottom p* is searched (golden section) between the nodes around the slowest one; its width is
+    speed(p*) / |c''(p*)|, |c''| measured from the speed a little beside p* (|c'|^2 ~ speed^2 + |c''|^2 dp^2)."""
+    step = p_end / (_TABLE_PANELS * 8)
+    lo, hi = np.maximum(near - step, 0.0), np.minimum(near + step, p_end)
+    for _ in range(80):  # the bracket shrinks to 0.618^80 of a node spacing: below double precision
+        a, b = hi - _GOLDEN * (hi - lo), lo + _GOLDEN * (hi - lo)
+        lower = speed(rows, a) <= speed(rows, b)
+        lo, hi = np.where(lower, lo, a), np.where(lower, b, hi)
+    bottom = 0.5 * (lo + hi)
+    slowest = speed(rows, bottom)
+    h = step / 8.0
+    beside = np.maximum(speed(rows, np.minimum(bottom + h, p_end)), speed(rows, np.maximum(bottom - h, 0.0)))
+    bend = np.sqrt(np.maximum(beside * beside - slowest * slowest, 0.0)) / h
+    width = np.divide(slowest, bend, out=np.full_like(slowest, np.inf), where=bend > 0)
+    sharp = width < p_end / _TABLE_PANELS
+    if not sharp.any():
+        return None
+    rows, p_end, bottom, width = rows[sharp], p_end[sharp], bottom[sharp], np.maximum(width[sharp], 1e-300)
+    before, after = bottom, p_end - bottom
+    # panels on each side by how many doublings of the dip's width it spans (at least one on a side with length)
+    weight_before, weight_after = np.log1p(before / width), np.log1p(after / width)
+    n_before = np.rint(_TABLE_PANELS * weight_before / (weight_before + weight_after)).astype(np.int64)
+    n_before = np.clip(n_before, (before > 0).astype(np.int64), _TABLE_PANELS - (after > 0).astype(np.int64))
+    k = np.arange(_TABLE_PANELS + 1)[None, :]
+    nb = n_before[:, None]
+    # offsets from the bottom: width * ((1 + side / width) ** (j / n) - 1), j = 0..n, grows to the side's end
+    j_before = np.maximum(nb - k, 0)
+    j_after = np.maximum(k - nb, 0)
+    off_before = width[:, None] * np.expm1(j_before / np.maximum(nb, 1) * np.log1p(before / width)[:, None])
+    off_after = width[:, None] * np.expm1(j_after / np.maximum(_TABLE_PANELS - nb, 1)
+                                          * np.log1p(after / width)[:, None])
+    edges = np.where(k < nb, bottom[:, None] - off_before, bottom[:, None] + off_after)
+    edges[:, 0], edges[:, -1] = 0.0, p_end
+    edges[np.arange(len(rows)), n_before] = bottom
+    return rows, edges
 
 
 def _arc_length_inverse(speed, p_end: np.ndarray, target: np.ndarray, row: np.ndarray,

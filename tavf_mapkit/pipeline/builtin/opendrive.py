@@ -30,8 +30,9 @@ class OpenDriveStage(Stage):
     # 2: an OpenDRIVE input becomes the build's NAME.xodr; 3: netconvert's output repaired; 4: @length set to the
     # arc length, [opendrive] repair; 5: connecting roads meet their lanes, one <controller> per id; 6: curves as
     # arcs ([opendrive] curves); 7: NAME.xodr is always this stage's (netconvert's file stays in netconvert/);
-    # 8: NAME.odrmap, the snapshot of NAME.xodr as read (opendrive/snapshot.py) for the stages and twins after it
-    version = "8"
+    # 8: NAME.odrmap, the snapshot of NAME.xodr as read (opendrive/snapshot.py) for the stages and twins after it;
+    # 9: a paramPoly3's arc length exact across a near-cusp (its @length repaired right, its arcs fitted)
+    version = "9"
     description = "read and check the OpenDRIVE (counts, bounds, georeference plausibility)"
 
     def options(self, context: BuildContext) -> dict:
