@@ -119,9 +119,10 @@ def percentiles(values: list[float]) -> dict | None:
     return {"p50_ms": float(np.percentile(values, 50)), "p95_ms": float(np.percentile(values, 95))}
 
 
-def sweep(build: Path, url: str, twins: int, duration: float, out: Path, server_pid: int) -> dict:
+def sweep(build: Path, url: str, twins: int, duration: float, out: Path, server_pid: int,
+          realtime: bool = False) -> dict:
     command = [str(BIN / "twin"), "sweep", "--map", str(build), "--seeds", f"0-{twins - 1}", "--duration",
-               str(duration), "--udm", url, "-o", str(out), "-q"]
+               str(duration), "--udm", url, "-o", str(out), "-q", *(["--udm-realtime"] if realtime else [])]
     if twins > 1:
         command += ["--workers", str(twins)]
     started = time.perf_counter()
@@ -245,6 +246,8 @@ def main() -> int:
     parser.add_argument("--build", type=Path, help="a build folder (default: build the zoo's Perth roundabout)")
     parser.add_argument("--twins", type=int, default=20)
     parser.add_argument("--duration", type=float, default=60.0)
+    parser.add_argument("--realtime", action="store_true",
+                        help="the UDM path under SCHED_FIFO: `twin udm serve --realtime`, `twin sweep --udm-realtime`")
     args = parser.parse_args()
     print("load average before:", " ".join(Path("/proc/loadavg").read_text().split()[:3]), flush=True)
     # uvicorn picks httptools and uvloop by itself when they are installed (uvicorn[standard]); the server
@@ -258,11 +261,13 @@ def main() -> int:
             build = scratch / "perth"
             subprocess.run([str(BIN / "mapkit"), "build", str(PERTH), "-o", str(build), "-q"], check=True,
                            capture_output=True)
-        server, url = start_server(build)
+        server, url = start_server(build, *(["--realtime"] if args.realtime else []))
+        print("UDM path's scheduling: " + ("SCHED_FIFO (server --realtime, clients --udm-realtime; the "
+                                           "simulations as before)" if args.realtime else "normal"), flush=True)
         try:
-            before = sweep(build, url, 1, args.duration, scratch / "alone-before", server.pid)
-            fleet = sweep(build, url, args.twins, args.duration, scratch / "fleet", server.pid)
-            after = sweep(build, url, 1, args.duration, scratch / "alone-after", server.pid)
+            runs = {name: sweep(build, url, twins, args.duration, scratch / name, server.pid, args.realtime)
+                    for name, twins in (("alone-before", 1), ("fleet", args.twins), ("alone-after", 1))}
+            before, fleet, after = runs["alone-before"], runs["fleet"], runs["alone-after"]
         finally:
             server.terminate()
             server.wait(10)
@@ -285,7 +290,7 @@ def main() -> int:
     print("load average after:", " ".join(Path("/proc/loadavg").read_text().split()[:3]))
     for row in (alone, fleet):
         row.pop("samples")
-    print(json.dumps({"alone": alone, "fleet": fleet, "ratio_p95": ratio}, indent=1))
+    print(json.dumps({"realtime": args.realtime, "alone": alone, "fleet": fleet, "ratio_p95": ratio}, indent=1))
     return 0
 
 

@@ -39,9 +39,10 @@ def ensure_build(build: Path) -> Path:
     return build
 
 
-def start_server(build: Path) -> tuple[subprocess.Popen, str]:
+def start_server(build: Path, *options: str) -> tuple[subprocess.Popen, str]:
+    """``twin udm serve --map BUILD`` on a free loopback port with ``options`` (e.g. --realtime): process, URL."""
     command = [sys.executable, "-m", "twin.cli.main", "udm", "serve", "--port", "0", "--map", str(build),
-               "--token", "bench"]
+               "--token", "bench", *options]
     process = subprocess.Popen(command, stdout=subprocess.PIPE, text=True, cwd=REPO)
     first = process.stdout.readline()
     match = re.search(r"http://\S+", first)

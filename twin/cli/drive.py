@@ -70,6 +70,11 @@ def _bias(value: str | None) -> tuple[float, float, float]:
               help="Query the UDM every N steps.")
 @click.option("--udm-bbox", type=click.FloatRange(min=0, min_open=True), default=200.0, show_default=True,
               metavar="M", help="Side of the square queried around the fix, metres.")
+@click.option("--udm-realtime", is_flag=True,
+              help="Run the drive's UDM client process under SCHED_FIFO, so on a busy machine its requests "
+                   "preempt other work instead of waiting for a core; the simulation keeps its priority (so a "
+                   "thread client, which shares its process, is never raised). Needs root, CAP_SYS_NICE or "
+                   "`ulimit -r 10`; otherwise a warning and normal priority.")
 @click.option("--record/--no-record", default=None,
               help="Record the session as MCAP (default: on when the recorder is installed).")
 @click.option("--traffic", type=click.IntRange(min=0), default=0, show_default=True, metavar="N",
@@ -88,7 +93,7 @@ def _bias(value: str | None) -> tuple[float, float, float]:
 @click.option("--no-browser", is_flag=True, help="With --view: print the address, do not open a browser.")
 @json_option
 def drive(map_dir, route, route_mode, random_route, duration, seed, speed_kmh, controller, dt, pace, vehicles, gnss_rate, gnss_noise,
-          gnss_bias, lidar, camera, gui, out_dir, no_plot, udm, udm_every, udm_bbox, record, traffic, pedestrians,
+          gnss_bias, lidar, camera, gui, out_dir, no_plot, udm, udm_every, udm_bbox, udm_realtime, record, traffic, pedestrians,
           demand, view, view_port, view_rate, no_browser, as_json) -> None:
     """Drive a simulated Tesla Model S through a build and write what happened.
 
@@ -111,7 +116,7 @@ def drive(map_dir, route, route_mode, random_route, duration, seed, speed_kmh, c
         raise click.UsageError("choose one of --route and --random")
     if route is None and not random_route:
         raise click.UsageError("choose a route: --random or --route TRACE")
-    plugins = {"udm": udm, "udm_every": udm_every, "udm_bbox": udm_bbox, "record": record, "traffic": traffic,
+    plugins = {"udm": udm, "udm_every": udm_every, "udm_bbox": udm_bbox, "udm_realtime": udm_realtime, "record": record, "traffic": traffic,
                "pedestrians": pedestrians, "demand": str(demand) if demand else None}
     config = DriveConfig(map=map_dir, out=out_dir, route=route, route_mode=route_mode, random=random_route, duration=duration, seed=seed,
                          speed_kmh=speed_kmh, dt=dt, controller=controller, vehicles=vehicles, gnss_rate=gnss_rate,

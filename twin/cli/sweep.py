@@ -24,6 +24,10 @@ from tavf_mapkit.errors import StageError
               help="SUMO vehicles around the ego in every run (red-light violations are counted then).")
 @click.option("--udm", metavar="URL", help="Every run queries the UDM at URL (all at once: a fleet against one "
                                            "UDM); its latency p50/p95/p99 goes into the table.")
+@click.option("--udm-realtime", is_flag=True,
+              help="With --udm: each run's UDM client process under SCHED_FIFO (twin drive --udm-realtime), so "
+                   "the fleet's requests preempt the runs' simulations, which stay batch work. Needs root, "
+                   "CAP_SYS_NICE or `ulimit -r 10`; otherwise a warning and normal priority.")
 @click.option("--pace", type=click.FloatRange(min=0.01), default=None,
               help="Times real time each run may go at most. Default: 1 (real time) with --udm, else unpaced.")
 @click.option("--workers", type=click.IntRange(min=1), default=None, metavar="N",
@@ -39,7 +43,8 @@ from tavf_mapkit.errors import StageError
                    "udm_latency.csv); written beside it and swapped in when complete.")
 @click.option("-q", "--quiet", is_flag=True, help="No line per finished run (`twin -q sweep` too).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary (sweep.json's) as JSON for machines.")
-def sweep(map_dir: Path, seeds: str, duration: float, traffic: int, udm: str | None, pace: float | None,
+def sweep(map_dir: Path, seeds: str, duration: float, traffic: int, udm: str | None, udm_realtime: bool,
+          pace: float | None,
           workers: int | None, scheduler: str | None, deadline: float | None, output: Path, quiet: bool,
           as_json: bool) -> None:
     """Drive one build with many seeds and tabulate the runs.
@@ -66,7 +71,10 @@ def sweep(map_dir: Path, seeds: str, duration: float, traffic: int, udm: str | N
     check_cluster_options(workers, scheduler)
     seed_list = parse_seeds(seeds)
     build = Build.open(map_dir)  # a one-line error for a folder that is not a build, before anything starts
-    options = DriveOptions(duration=duration, traffic=traffic, udm=udm, pace=1.0 if udm and pace is None else pace)
+    if udm_realtime and not udm:
+        raise click.UsageError("--udm-realtime needs --udm URL")
+    options = DriveOptions(duration=duration, traffic=traffic, udm=udm, udm_realtime=udm_realtime,
+                           pace=1.0 if udm and pace is None else pace)
     deadline = deadline or options.deadline()
     started = time.perf_counter()
     rows = []
@@ -100,7 +108,7 @@ def sweep(map_dir: Path, seeds: str, duration: float, traffic: int, udm: str | N
 
     table = [row for row, _ in rows]
     facts = summary(table, str(build.path), {"seeds": seeds, "duration": duration, "traffic": traffic,
-                                             "udm": udm, "pace": options.pace, "timeout": deadline},
+                                             "udm": udm, "udm_realtime": udm_realtime, "pace": options.pace, "timeout": deadline},
                     seconds, where)
     with staged_folder(output, marker="sweep.json", what="the sweep folder") as staging:
         (staging / "sweep.csv").write_text(csv_text(table), encoding="utf-8")

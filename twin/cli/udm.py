@@ -43,10 +43,15 @@ def udm() -> None:
                    "signals.geojson) become layer-2 objects before serving.")
 @click.option("--purge-interval", default=60.0, show_default=True, type=click.FloatRange(min=0.1),
               help="Seconds between deletions of expired objects (queries never return them anyway).")
+@click.option("--realtime", is_flag=True,
+              help="Serve under SCHED_FIFO, so on a machine whose cores are busy (a fleet of twins, other jobs) "
+                   "a request is answered at once instead of waiting for a core; the server only waits on its "
+                   "socket and uses ~1 ms per request. Needs root, CAP_SYS_NICE or `ulimit -r 10`; otherwise a "
+                   "warning and normal priority. Pair it with `twin sweep/drive --udm-realtime`.")
 @click.option("--json", "as_json", is_flag=True,
               help="Print the start line (url, store, objects, seeded, a generated token) as one JSON line.")
 def serve(db_path: Path | None, host: str, port: int, token: str | None, seed_dir: Path | None,
-          purge_interval: float, as_json: bool) -> None:
+          purge_interval: float, realtime: bool, as_json: bool) -> None:
     """Serve the UDM over HTTP until Ctrl-C.
 
     \b
@@ -99,7 +104,7 @@ def serve(db_path: Path | None, host: str, port: int, token: str | None, seed_di
 
     try:
         run_server(create_app(store, token, purge_interval_s=purge_interval), host, port,
-                   on_listening=announce,
+                   on_listening=announce, realtime=realtime,
                    log_level=logging.getLevelName(log_level(verbosity())).lower())
     except OSError as error:
         raise InputError(f"cannot listen on {host}:{port}: {error.strerror or error}") from None

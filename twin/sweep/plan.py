@@ -35,6 +35,7 @@ class DriveOptions:
     duration: float = 60.0
     traffic: int = 0
     udm: str | None = None
+    udm_realtime: bool = False  # each run's UDM client process under SCHED_FIFO (twin drive --udm-realtime)
     pace: float | None = None
     dt: float = 0.05
 
@@ -45,6 +46,8 @@ class DriveOptions:
             args += ["--traffic", str(int(self.traffic))]
         if self.udm:
             args += ["--udm", self.udm]
+            if self.udm_realtime:
+                args.append("--udm-realtime")
         if self.pace is not None:
             args += ["--pace", repr(float(self.pace))]
         return args

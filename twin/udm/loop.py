@@ -98,7 +98,8 @@ def response_from_record(record: Mapping[str, Any]) -> UdmResponse:
 class UdmHook(SessionHook):
     """Created by ``twin.session.plugins`` with the drive options: ``udm`` (base URL), ``udm_every``,
     ``udm_bbox`` (side in metres), optional ``udm_timeout``, ``udm_retries``, ``udm_client``
-    (``process``, the default, or ``thread``) and ``udm_replay`` (a recording whose answers to replay)."""
+    (``process``, the default, or ``thread``), ``udm_realtime`` (the client process under SCHED_FIFO,
+    twin.udm.priority) and ``udm_replay`` (a recording whose answers to replay)."""
 
     name = "udm"
 
@@ -111,6 +112,8 @@ class UdmHook(SessionHook):
         retries = options.get("udm_retries")
         self.retries = DEFAULT_RETRIES if retries is None else int(retries)
         self.client_kind = str(options.get("udm_client") or "process")
+        self.realtime = bool(options.get("udm_realtime"))
+        self.client_policy: str | None = None  # the client process's, as the OS reports it once it is ready
         self.replay_path = options.get("udm_replay")
         self.client: Any = None
         self.replay: RecordedAnswers | None = None
@@ -138,11 +141,15 @@ class UdmHook(SessionHook):
             return
         options = {"timeout_s": self.timeout_s, "max_retries": self.retries}
         if self.client_kind == "thread":
+            if self.realtime:  # the thread shares the simulation's process: raising it would raise the simulation
+                log.warning("udm_realtime applies to the UDM client process only; the thread client runs at the "
+                            "simulation's priority")
             self.client = UdmClient(self.url, **options)
         else:
             from twin.udm.process_client import UdmProcessClient
 
-            self.client = UdmProcessClient(self.url, **options)
+            self.client = UdmProcessClient(self.url, realtime=self.realtime, **options)
+            self.client_policy = self.client.scheduling_policy()
 
     def after_step(self, session: SessionView, frame: Frame) -> None:
         started = time.perf_counter()
@@ -185,7 +192,7 @@ class UdmHook(SessionHook):
             stats = self.client.stats()
             client_stats = {"submitted": stats.submitted, "dropped": stats.dropped, "abandoned": stats.abandoned,
                             "requests": stats.requests, "retries": stats.retries, "ok": stats.ok,
-                            "errors": dict(stats.errors)}
+                            "errors": dict(stats.errors), "realtime": self.realtime, "policy": self.client_policy}
         else:
             client_stats = {"replayed": True}
         if self.latency_log is not None:

@@ -14,23 +14,30 @@ of the machine, so latencies measured in the child and publish times taken in th
 from __future__ import annotations
 
 import math
-import os
+import sys
 import time
 from collections import deque
 from typing import Any, Self
 
 from twin.childproc import ChildProcess, Parent, serve
 from twin.udm.client import INTERNAL, INVALID_FIX, ClientStats, UdmClient, UdmQuery, UdmResponse
+from twin.udm.priority import normal_policy, policy_name, realtime_policy
 
 
 class UdmProcessClient:
-    """Non-blocking UDM queries answered by a ``UdmClient`` in a child process (same keyword arguments)."""
+    """Non-blocking UDM queries answered by a ``UdmClient`` in a child process (same keyword arguments).
 
-    def __init__(self, base_url: str = "http://127.0.0.1:8765", **client_options: Any) -> None:
+    ``realtime``: the child runs under SCHED_FIFO (twin.udm.priority.realtime_policy), so on a busy machine its
+    requests and answers preempt the simulations instead of waiting for a core; where that is not permitted it
+    warns once and runs at normal priority."""
+
+    def __init__(self, base_url: str = "http://127.0.0.1:8765", *, realtime: bool = False,
+                 **client_options: Any) -> None:
         self.base_url = base_url
-        # returns once the child's client exists, so the first query's latency does not include the spawn
+        # returns once the child's client exists (and its policy is set), so the first query's latency does not
+        # include the spawn
         self._child = ChildProcess("twin.udm.process_client", "the UDM client process",
-                                   {"base_url": base_url, "options": client_options})
+                                   {"base_url": base_url, "options": client_options, "realtime": realtime})
         self._local: list[UdmResponse] = []  # answers made here (invalid fix, broken pipe) or read during flush
         self._local_errors: dict[str, int] = {}
         self._sent = 0  # queries handed to the child
@@ -87,6 +94,10 @@ class UdmProcessClient:
     def close(self, timeout_s: float = 5.0) -> None:
         self._child.close(timeout_s, self._take)
 
+    def scheduling_policy(self) -> str | None:
+        """The child's scheduling policy as the OS reports it (``fifo``, ``other``, ...); None once it ended."""
+        return policy_name(self._child.process.pid) if self._child.process.poll() is None else None
+
     def __enter__(self) -> Self:
         return self
 
@@ -114,7 +125,11 @@ def _serve(settings: dict[str, Any], parent: Parent) -> None:
     pipe is drained into a bounded queue that keeps the newest ``queue_size`` (the oldest are dropped,
     as in ``UdmClient``).
     """
-    normal_policy()
+    reason = realtime_policy("the UDM client process") if settings.get("realtime") else None
+    if reason or not settings.get("realtime"):
+        normal_policy()
+    if reason:  # once, on the drive's stderr (the child's is the parent's); the drive goes on
+        print(f"warning: {reason}", file=sys.stderr, flush=True)
     options = dict(settings["options"])
     queue_size = max(1, int(options.pop("queue_size", 8)))
     client = UdmClient(settings["base_url"], start_worker=False, **options)
@@ -153,17 +168,6 @@ def _serve(settings: dict[str, Any], parent: Parent) -> None:
                     parent.send("flushed", True)
         finally:
             client.count("abandoned", len(pending))
-
-
-def normal_policy() -> None:
-    """Leave SCHED_BATCH if the drive was started under it (``twin sweep`` does, twin.sweep.runs.batch_policy):
-    the simulation may wait for a core, the UDM request must not. A batch thread that wakes never preempts the
-    running one, it waits for that one's slice to end -- and this process wakes for every answer."""
-    try:
-        if os.sched_getscheduler(0) == os.SCHED_BATCH:
-            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-    except (AttributeError, OSError):  # not Linux, or not allowed: keep the inherited policy
-        pass
 
 
 if __name__ == "__main__":

@@ -31,6 +31,7 @@ from starlette.routing import Route
 
 from twin import __version__
 from twin.udm.model import ID_PATTERN, BBox, InvalidObject, Layer, UdmObject, iso_utc, parse_layer
+from twin.udm.priority import realtime_policy
 from twin.udm.store import DEFAULT_LIMIT, Store
 
 # Query limits, documented in docs/udm-api.md and the OpenAPI document. They keep one careless request from
@@ -520,9 +521,17 @@ def uvicorn_server(app: Any, *, log_level: str = "warning", graceful_s: float = 
 
 
 def run_server(app: Any, host: str, port: int, *, on_listening: Callable[[str], None] | None = None,
-               log_level: str = "warning") -> None:
-    """Serve ``app`` until interrupted; ``on_listening(url)`` runs once the port is bound (port 0 allowed)."""
+               log_level: str = "warning", realtime: bool = False) -> None:
+    """Serve ``app`` until interrupted; ``on_listening(url)`` runs once the port is bound (port 0 allowed).
+
+    ``realtime``: this thread, which runs uvicorn's event loop (with uvloop and httptools the whole server is
+    this one thread), serves under SCHED_FIFO (twin.udm.priority); where that is not permitted, a warning and
+    normal priority."""
     sock = bind_socket(host, port)
+    if realtime:
+        reason = realtime_policy("the UDM server")
+        if reason:
+            log.warning("%s", reason)
     if on_listening:
         on_listening(url_of(sock))
     uvicorn_server(app, log_level=log_level).run(sockets=[sock])
