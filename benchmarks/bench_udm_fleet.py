@@ -3,11 +3,13 @@ twin alone (issue 16: within 1.2x).
 
     $ .venv/bin/python benchmarks/bench_udm_fleet.py                     # the zoo's Perth roundabout, 60 s
     $ .venv/bin/python benchmarks/bench_udm_fleet.py --twins 20 --duration 120 --build build/tavf-dlr
+    $ .venv/bin/python benchmarks/bench_udm_fleet.py --realtime          # the UDM path under SCHED_FIFO
 
 Starts ``twin udm serve --map BUILD`` on a free loopback port (its own process), then
 ``twin sweep --udm URL`` (every run at real time, --pace 1): one seed alone, then ``--twins`` seeds on a
 LocalCluster of as many workers, so all twins drive at once against the same server, then the one seed alone
-again. The latency is the twin's request latency (fix sent -> answer parsed) of every successful query, pooled
+again. With ``--realtime`` the server is started with ``--realtime`` and the sweeps with ``--udm-realtime``
+(the request path under SCHED_FIFO, the simulations as they are; docs/distributed.md). The latency is the twin's request latency (fix sent -> answer parsed) of every successful query, pooled
 over the runs from their udm_latency.csv; the ratio is the fleet's p95 over the lone twin's, whose queries are
 pooled from before and after the fleet: on a machine shared with other jobs their load drifts within minutes,
 and a lone run on one side of the fleet only would put all of that drift into the ratio (both lone runs' p95
