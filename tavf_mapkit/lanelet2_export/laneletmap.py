@@ -12,7 +12,7 @@ Steps (vectorised over the map but the per-lane, per-way and per-signal bookkeep
 3. cut folded borders (``folds``) and choose the samples of sections Lanelet2 would misread (``untangle``);
 4. join the corners of lane ends the map links (``lanegraph.topology.lane_end_pairs``), so Lanelet2's routing
    graph finds the same successors as our lane graph, and merge coinciding points into nodes
-   (``nodes.merge_points``);
+   (``nodes.merge_points``) -- never a lane end with a point of another section, so it finds no others;
 5. tag every border way with its road mark's line type, adding explicit ``lane_change`` tags where the line
    type alone would tell Lanelet2 something else than the mark does for our lane graph; give every lanelet our
    centre line (``centreline``), and inside-out ones bounds of their own (``orientation``);

@@ -103,7 +103,7 @@ def merge_points(
         del positions  # a region's nodes: free what the next ones replace before making them
         merged = _first_order(_components(m, close))
         del close
-        label = merged[label]
+        np.take(merged, label, out=label, mode="clip")  # in place: a region's labels are 100 MB
         m = int(merged.max()) + 1
         del merged
         positions = _means(fixed_points, label, m)
