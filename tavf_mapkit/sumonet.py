@@ -72,7 +72,7 @@ def read_net_bytes(path: str | Path) -> bytes:
 
 def check_sumo_net(path: str | Path) -> dict:
     """Refuse a SUMO network netconvert should not read; return its counts and <location>."""
-    from tavf_mapkit.xmlsafe import iterparse_safe, prepare_xml_bytes
+    from tavf_mapkit.xmlsafe import iterparse_safe, prepare_xml_bytes, release_if_top_level
 
     name = str(path)
     source = prepare_xml_bytes(read_net_bytes(path), name)
@@ -90,11 +90,7 @@ def check_sumo_net(path: str | Path) -> dict:
     # a region's network (Columbus: 126 MB) is never a whole tree in memory (it was ~500 MB of the report stage)
     for event, element in iterparse_safe(source, events=("start", "end")):
         if event == "end":
-            parent = element.getparent()
-            if parent is not None and parent.getparent() is None:
-                element.clear()
-                while element.getprevious() is not None:
-                    del parent[0]
+            release_if_top_level(element)
             continue
         if not root_seen:
             root_seen = True

@@ -135,6 +135,18 @@ def iterparse_safe(source: XmlSource, events=("start", "end"), tag=None):
             raise InputError(f"not well-formed XML: {message}", file=source.name, line=line) from None
 
 
+def release_if_top_level(element: etree._Element) -> bool:
+    """In a streaming pass, let a finished child of the document's root go together with the siblings before it
+    (lxml keeps every parsed element otherwise: a region's file would become a whole tree). True if it was one."""
+    parent = element.getparent()
+    if parent is None or parent.getparent() is not None:
+        return False
+    element.clear()
+    while element.getprevious() is not None:
+        del parent[0]
+    return True
+
+
 def parse_safe(source: XmlSource) -> etree._Element:
     """Parse a whole document with the safe settings and return its root."""
     try:

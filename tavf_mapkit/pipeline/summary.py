@@ -14,7 +14,7 @@ def opendrive_counts(xodr: Path) -> dict:
     Tags are matched in any namespace: some writers put OpenDRIVE in a default namespace (the A9 HD map)."""
     from lxml import etree
 
-    from tavf_mapkit.xmlsafe import iterparse_safe, read_xml_source
+    from tavf_mapkit.xmlsafe import iterparse_safe, read_xml_source, release_if_top_level
 
     counts = {"roads": 0, "junctions": 0, "signals": 0, "objects": 0, "road_length_km": 0.0}
     length = 0.0
@@ -23,7 +23,6 @@ def opendrive_counts(xodr: Path) -> dict:
     for _event, element in context:
         tag = etree.QName(element).localname
         parent = element.getparent()
-        top_level = parent is not None and parent.getparent() is None
         if tag == "road":
             counts["roads"] += 1
             length += float(element.get("length", 0.0) or 0.0)
@@ -33,10 +32,7 @@ def opendrive_counts(xodr: Path) -> dict:
             counts["signals"] += 1
         elif tag == "object":
             counts["objects"] += 1
-        if top_level:  # a road or junction done: it and the elements before it go (a region's file is GBs)
-            element.clear()
-            while element.getprevious() is not None:
-                del parent[0]
+        release_if_top_level(element)  # a road or junction done: it goes (a region's file is GBs)
     counts["road_length_km"] = round(length / 1000, 3)
     return counts
 
