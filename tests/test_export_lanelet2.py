@@ -659,3 +659,99 @@ def test_real_build(lanelet2, fixture, request, tmp_path):
           f"{summary['seconds']:.2f} s, centre max {figures['centre_max'] * 1000:.1f} mm p99 "
           f"{figures['centre_p99'] * 1000:.2f} mm, {figures['missing_edges']} of {figures['edges']} lane-graph "
           f"edges missing (inside-out lanes: {summary['private_bounds']})")
+
+
+def _loader_inversions(lanelet2, lefts: list[np.ndarray], rights: list[np.ndarray], tmp_path: Path):
+    """(left inverted, right inverted) of each (left, right) pair of (n, 3) local bounds, as the real Lanelet2
+    loader decides: the bounds written as one lanelet each (nodes as the export writes them), loaded at the
+    origin with its LocalCartesian projector, and each loaded bound's first node compared with its way's."""
+    import pyproj
+    from lanelet2.io import Origin
+    from lanelet2.projection import LocalCartesianProjector
+
+    from tavf_mapkit.lanelet2_export.laneletmap import LaneletMap
+    from tavf_mapkit.lanelet2_export.osmxml import osm_text
+
+    origin = (53.55, 10.0)
+    nodes, way_nodes, lanelets = [], [], []
+    for left, right in zip(lefts, rights):
+        for line in (left, right):
+            way_nodes.append(np.arange(len(nodes), len(nodes) + len(line)))
+            nodes.extend(line.tolist())
+        lanelets.append({"left": len(way_nodes) - 2, "right": len(way_nodes) - 1, "tags": {
+            "type": "lanelet", "subtype": "road", "location": "urban", "one_way": "yes"}, "regulatory": []})
+    laneletmap = LaneletMap(np.array(nodes), way_nodes, [{"type": "line_thin", "subtype": "solid"}] * len(way_nodes),
+                            lanelets)
+    to_wgs84 = pyproj.Transformer.from_pipeline(
+        "+proj=pipeline +step +proj=axisswap +order=2,1 +step +proj=unitconvert +xy_in=deg +xy_out=rad "
+        f"+step +proj=cart +ellps=WGS84 +step +proj=topocentric +ellps=WGS84 +lat_0={origin[0]} "
+        f"+lon_0={origin[1]} +h_0=0")
+    xyz = laneletmap.nodes
+    lat, lon, _ = to_wgs84.transform(xyz[:, 0], xyz[:, 1], xyz[:, 2], direction="INVERSE")
+    osm = tmp_path / "orientation.osm"
+    osm.write_text(osm_text(laneletmap, lon, lat))
+    loaded = lanelet2.io.load(str(osm), LocalCartesianProjector(Origin(*origin)))
+    first_lanelet = len(nodes) + len(way_nodes) + 1  # osmxml's ids: nodes, ways, then lanelets
+    result = []
+    for i, (left_way, right_way) in enumerate(zip(way_nodes[::2], way_nodes[1::2])):
+        lanelet = loaded.laneletLayer[first_lanelet + i]
+        result.append((lanelet.leftBound[0].id != left_way[0] + 1, lanelet.rightBound[0].id != right_way[0] + 1))
+    return result
+
+
+def _curl_bound() -> np.ndarray:
+    """Columbus ramp 151076's left bound (m from its last turn, as exported, the straight before the curl
+    thinned): the folded inner border leaves a curl that runs 36 cm back (+y) against the lane (-y) before a
+    38 m straight."""
+    curl = [[0.261, -0.36], [0.233, -0.349], [0.206, -0.336], [0.179, -0.322], [0.154, -0.306], [0.129, -0.289],
+            [0.106, -0.27], [0.084, -0.249], [0.064, -0.226], [0.047, -0.202], [0.032, -0.176], [0.02, -0.148],
+            [0.01, -0.119], [0.004, -0.09], [0.0, -0.06], [-0.001, -0.03], [0.0, 0.0]]
+    xy = [[21.546, 48.563], [16.85, 5.94], [11.84, 0.52], [5.0, -0.3], *curl, [-2.702, -38.234], [-5.403, -76.468],
+          [-8.105, -114.702]]
+    return np.column_stack([np.array(xy), np.zeros(len(xy))])
+
+
+def _random_bounds(rng, count: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """``count`` random (left, right) pairs: along +x, the right one at -width, each with its own wiggle (none
+    to 5 m), some with their points out of order (running back on themselves), some at other heights; turned
+    to a random heading."""
+    lefts, rights = [], []
+    for _ in range(count):
+        n_left, n_right = rng.integers(2, 12, 2)
+        length = rng.uniform(0.05, 60.0)
+        width = rng.uniform(0.0, 6.0)
+        angle = rng.uniform(0, 2 * np.pi)
+        turn = np.array([[np.cos(angle), -np.sin(angle), 0], [np.sin(angle), np.cos(angle), 0], [0, 0, 1]])
+        pair = []
+        for n, y0 in ((n_left, 0.0), (n_right, -width)):
+            s = np.sort(rng.uniform(0, length, n)) if rng.random() < 0.7 else rng.uniform(0, length, n)
+            y = y0 + rng.normal(0, rng.choice([0.0, 0.01, 0.5, 5.0]), n)
+            z = rng.normal(0, rng.choice([0.0, 2.0]), n)
+            pair.append(np.column_stack([s, y, z]) @ turn.T)
+        lefts.append(pair[0])
+        rights.append(pair[1])
+    return lefts, rights
+
+
+def test_orientation_replica_agrees_with_the_lanelet2_loader(lanelet2, tmp_path):
+    """``orientation``'s replica of Lanelet2's ``align`` against the real loader on 400 random lanelets (smooth
+    curves, zigzags, folds, curls, one-segment bounds, bounds with points at other heights) plus the two kinds
+    of Columbus lanelet it misread: where the replica says it knows, it must say what the loader does; where
+    the loader's answer hangs on a tie it must say it does not know (those lanelets get other bounds)."""
+    from tavf_mapkit.lanelet2_export.orientation import inverted_bounds
+
+    lefts, rights = _random_bounds(np.random.default_rng(11), 400)
+    # Columbus 151076: the right bound's middle point nearest the curl's tip, where the segments disagree
+    curl = _curl_bound()
+    lefts.append(curl)
+    rights.append(np.array([[17.57, 49.001, 0.0], [1.193, 3.519, 0.0], [-12.095, -114.42, 0.0]]))
+    # Columbus U-turn 251407 cut to its corners: the right chord's middle point on the inner bound's line
+    lefts.append(np.array([[0.0, 0.0, 0.0], [0.077, 0.016, 0.0]]))
+    rights.append(np.array([[0.0385 + 4 * 0.016, 0.008 - 4 * 0.077, 0.0], [0.0385 - 4 * 0.016, 0.008 + 4 * 0.077, 0.0]]))
+    loader = _loader_inversions(lanelet2, lefts, rights, tmp_path)
+    replica = [inverted_bounds(left, right) for left, right in zip(lefts, rights)]
+    known = [i for i, r in enumerate(replica) if r is not None]
+    wrong = [(i, replica[i], loader[i]) for i in known if replica[i] != loader[i]]
+    assert not wrong, wrong
+    assert len(known) >= 350, "the replica knows the loader's answer on almost every lanelet"
+    assert replica[-2] is None and replica[-1] is None

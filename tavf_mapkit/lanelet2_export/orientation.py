@@ -2,10 +2,15 @@
 
 Lanelet2 does not take a lanelet's bounds as written: the loader inverts the left bound unless the right
 bound's middle point lies right of it, then the right bound unless the left bound's middle point lies left of
-it (``signedDistance`` to the nearest segment, with its rule for points nearest a vertex). Our bounds run in
-the driving direction, so on sane geometry nothing is inverted. A lane whose border runs backwards between its
+it (``signedDistance`` to the nearest segment in 3D, with its rule for points nearest a vertex). Our bounds run
+in the driving direction, so on sane geometry nothing is inverted. A lane whose border runs backwards between its
 two corners (inside out: netconvert's wide lane groups through tight junction turns) cannot pass that test
 with any polyline from corner to corner; the export counts those lanelets instead of hiding them.
+
+Where the middle point is nearest a vertex at which the bound turns back (the curl a folded inner border leaves
+on a tight ramp), the two segments meeting there disagree on the side and the loader's answer depends on which
+of the two equally near segments its distance search keeps: Columbus, road 151076, reads either way depending on
+how many points the bound has. Such a lanelet is *uncertain* and handled as a turned one.
 """
 
 from __future__ import annotations
@@ -14,35 +19,45 @@ import itertools
 
 import numpy as np
 
+#: a side decided by less than this may be noise to the loader: ten times the file's lat/lon rounding
+#: (1e-10 deg, 0.01 mm). Columbus's U-turn 251407 with bounds cut to their corners had the right chord's middle
+#: 2 nm off the 79 mm inner bound's line; at 1 mm tiny turnaround loops whose side is clear would count too
+SIDE_MARGIN = 1e-4
+
 
 def _middle(points: np.ndarray) -> np.ndarray:
     """lanelet2's getMiddlePoint: the point at half the count, or the mean of the ends for two points."""
     return points[len(points) // 2] if len(points) > 2 else 0.5 * (points[0] + points[-1])
 
 
-def inverted_bounds(left: np.ndarray, right: np.ndarray) -> tuple[bool, bool]:
-    """(left inverted, right inverted) as Lanelet2's loader decides for (n, 2) bounds as the file has them."""
-    left_inverted, right_inverted = _inversions([left], [right])
-    return bool(left_inverted[0]), bool(right_inverted[0])
+def inverted_bounds(left: np.ndarray, right: np.ndarray) -> tuple[bool, bool] | None:
+    """(left inverted, right inverted) as Lanelet2's loader decides for (n, 2) or (n, 3) bounds as the file has
+    them, or None where its decision hangs on a tie (see the module's doc)."""
+    left_inverted, right_inverted, uncertain = _inversions([left], [right])
+    return None if uncertain[0] else (bool(left_inverted[0]), bool(right_inverted[0]))
 
 
-def _sides(lines: list[np.ndarray], queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """For every (polyline, point) pair: is the point left of the polyline, and is it off it (lanelet2's
-    signedDistance: the first nearest segment decides, and where the point is nearest that segment's end
-    vertex the
-    next segment may turn the answer)."""
+def _sides(lines: list[np.ndarray], queries: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For every (polyline, point) pair: is the point left of the polyline, is it off it, and is that side
+    uncertain. lanelet2's signedDistance: the nearest segment decides (distances over all the coordinates
+    given, the side in x-y); a point nearest a segment's end vertex is nearest there exactly, and the next
+    segment may turn the answer. Uncertain: where that vertex is also the next segment's start and the next
+    segment alone says the other side (the answer depends on which of the two the loader keeps), where the
+    point lies within ``SIDE_MARGIN`` of the deciding segment's line, or where another segment within
+    ``SIDE_MARGIN`` as near says the other side."""
     n = len(lines)
     sizes = np.array([len(line) for line in lines], dtype=np.int64)
     left = np.zeros(n, dtype=bool)
     positive = np.zeros(n, dtype=bool)
+    uncertain = np.zeros(n, dtype=bool)
     single = sizes < 2
     if single.any():  # a one-point line: the distance to the point, never left
         idx = np.flatnonzero(single)
-        points = np.array([lines[i][0] for i in idx]).reshape(-1, 2)
-        positive[idx] = np.hypot(*(queries[idx] - points).T) > 0
+        points = np.array([lines[i][0] for i in idx]).reshape(len(idx), -1)
+        positive[idx] = np.linalg.norm(queries[idx] - points, axis=1) > 0
     many = np.flatnonzero(~single)
     if not len(many):
-        return left, positive
+        return left, positive, uncertain
     count = sizes[many] - 1
     owner = np.repeat(np.arange(len(many)), count)
     stacked = np.concatenate([lines[i] for i in many])
@@ -52,62 +67,84 @@ def _sides(lines: list[np.ndarray], queries: np.ndarray) -> tuple[np.ndarray, np
     b = stacked[np.repeat(first, count) + k + 1]
     p = queries[many][owner]
     d = b - a
-    length2 = np.einsum("ij,ij->i", d, d)
+    # lanelet2's projection: the start vertex itself where c1 <= 0, the end vertex itself where c2 <= c1, so a
+    # point nearest a vertex is exactly as near the two segments meeting there (the first of them is kept)
+    c1 = np.einsum("ij,ij->i", p - a, d)
+    c2 = np.einsum("ij,ij->i", d, d)
+    at_start = c1 <= 0
+    at_end = ~at_start & (c2 <= c1)
     with np.errstate(divide="ignore", invalid="ignore"):
-        u = np.clip(np.einsum("ij,ij->i", p - a, d) / length2, 0.0, 1.0)
-    u = np.where(length2 > 0, u, 0.0)
-    foot = a + u[:, None] * d
+        inside = a + (c1 / c2)[:, None] * d
+    foot = np.where(at_start[:, None], a, np.where(at_end[:, None], b, inside))
     distance2 = np.einsum("ij,ij->i", p - foot, p - foot)
-    # first nearest segment of each line (lanelet2 keeps the first on ties)
+    # first nearest segment of each line
     order = np.lexsort((np.arange(len(owner)), distance2, owner))
     best = order[np.searchsorted(owner[order], np.arange(len(many)), side="left")]
 
-    def is_left(a_, b_, p_):
-        return (b_[:, 0] - a_[:, 0]) * (p_[:, 1] - a_[:, 1]) - (b_[:, 1] - a_[:, 1]) * (
-            p_[:, 0] - a_[:, 0]
-        ) > 0
-
-    result = is_left(a[best], b[best], p[best])
-    last_segment = k[best] == count - 1
-    at_end = (u[best] >= 1.0) & ~last_segment
-    if at_end.any():
-        j = best[at_end]
-        following = b[j + 1]
-        flip = (result[at_end] != is_left(b[j], following, p[j])) & (
-            result[at_end] == is_left(a[j], b[j], following)
-        )
-        result[np.flatnonzero(at_end)[flip]] = ~result[np.flatnonzero(at_end)[flip]]
+    side = _cross(d, p - a)  # lanelet2's pointIsLeftOf: the z of (b - a) x (p - a), left where > 0
+    raw = side > 0
+    result = raw[best].copy()
+    span = np.sqrt(c2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        off_line = np.abs(side) / span
+    # near-collinear: the side is the sign of a cross product the loader's coordinates may turn
+    close_call = off_line[best] < SIDE_MARGIN
+    vertex = np.flatnonzero(at_end[best] & (k[best] != count - 1))
+    if len(vertex):
+        j = best[vertex]
+        next_side = raw[j + 1]
+        disagree = result[vertex] != next_side
+        turn = _cross(d[j], b[j + 1] - a[j])
+        flip = disagree & (result[vertex] == (turn > 0))
+        result[vertex[flip]] = ~result[vertex[flip]]
+        # had the loader kept the next segment (it starts on the vertex), it would read next_side; where the
+        # line doubles straight back the rule's test of the turn is a close call too
+        uncertain[many[vertex[result[vertex] != next_side]]] = True
+        close_call[vertex] |= (off_line[j + 1] < SIDE_MARGIN) | (disagree & (np.abs(turn) / span[j] < SIDE_MARGIN))
+    # another segment about as near that says the other side (the one after a vertex is the rule's)
+    near = distance2 <= (np.sqrt(distance2[best])[owner] + SIDE_MARGIN) ** 2
+    others = near & (raw != result[owner])
+    others[best] = False
+    others[best[vertex] + 1] = False
+    uncertain[many] |= close_call | (np.bincount(owner[others], minlength=len(many)) > 0)
     left[many] = result
     positive[many] = distance2[best] > 0
-    return left, positive
+    return left, positive, uncertain
 
 
-def _inversions(lefts: list[np.ndarray], rights: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """``inverted_bounds`` of many lanelets at once."""
+def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """z of the cross products of the x-y parts of rows of ``u`` and ``v``."""
+    return u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
+
+
+def _inversions(lefts: list[np.ndarray], rights: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``inverted_bounds`` of many lanelets at once: (left inverted, right inverted, uncertain)."""
     left_size = np.array([len(v) for v in lefts])
     right_size = np.array([len(v) for v in rights])
     trivial = ((left_size <= 1) & (right_size <= 1)) | (left_size == 0) | (right_size == 0)
-    side, positive = _sides(lefts, np.array([_middle(r) for r in rights]).reshape(-1, 2))
+    dim = next((np.shape(v)[1] for v in lefts + rights if len(v)), 2)
+    side, positive, left_uncertain = _sides(lefts, np.array([_middle(r) for r in rights]).reshape(-1, dim))
     left_inverted = ~(~side & positive) & (left_size > 1) & ~trivial
     middles = np.array([_middle(l[::-1] if inv else l) for l, inv in zip(lefts, left_inverted)]).reshape(
-        -1, 2
+        -1, dim
     )
-    side, positive = _sides(rights, middles)
+    side, positive, right_uncertain = _sides(rights, middles)
     right_inverted = ~(side & positive) & (right_size > 1) & ~trivial
-    return left_inverted, right_inverted
+    return left_inverted, right_inverted, (left_uncertain | right_uncertain) & ~trivial
 
 
 def turned_lanelets(laneletmap) -> list[int]:
-    """Indices of the lanelets Lanelet2 will not read in their lane's driving direction. Our ways run with s,
-    so a lanelet against s is right when both bounds get inverted, one with s when neither does."""
+    """Indices of the lanelets Lanelet2 will not read, or may not read, in their lane's driving direction. Our
+    ways run with s, so a lanelet against s is right when both bounds get inverted, one with s when neither
+    does."""
     if not laneletmap.lanelets:
         return []
-    nodes = laneletmap.nodes[:, :2]
+    nodes = laneletmap.nodes
     lefts = [nodes[laneletmap.way_nodes[lanelet["left"]]] for lanelet in laneletmap.lanelets]
     rights = [nodes[laneletmap.way_nodes[lanelet["right"]]] for lanelet in laneletmap.lanelets]
     against = np.array([not lanelet["forward"] for lanelet in laneletmap.lanelets])
-    left_inverted, right_inverted = _inversions(lefts, rights)
-    return np.flatnonzero((left_inverted != against) | (right_inverted != against)).tolist()
+    left_inverted, right_inverted, uncertain = _inversions(lefts, rights)
+    return np.flatnonzero((left_inverted != against) | (right_inverted != against) | uncertain).tolist()
 
 
 def give_private_bounds(laneletmap) -> tuple[int, int]:
@@ -201,11 +238,11 @@ def _cross_sections(lanelet: dict, a, b, c, d, length: float):
 
 
 def _positions(original: np.ndarray, fresh: np.ndarray, first_fresh: int, ids: np.ndarray) -> np.ndarray:
-    """(n, 2) of node ids that are nodes of ``original`` or, from ``first_fresh`` on, points of ``fresh``."""
+    """(n, 3) of node ids that are nodes of ``original`` or, from ``first_fresh`` on, points of ``fresh``."""
     is_fresh = ids >= first_fresh
-    xy = original[np.where(is_fresh, 0, ids), :2]
-    xy[is_fresh] = fresh[ids[is_fresh] - first_fresh, :2]
-    return xy
+    xyz = original[np.where(is_fresh, 0, ids)]
+    xyz[is_fresh] = fresh[ids[is_fresh] - first_fresh]
+    return xyz
 
 
 def _cross_section(middle: np.ndarray, u: np.ndarray, n: np.ndarray, offset: float) -> np.ndarray:

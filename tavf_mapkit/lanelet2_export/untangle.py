@@ -29,8 +29,8 @@ def _bounds(points, keep, start, count, border):
     out = []
     for b in border:
         run = slice(start[b], start[b] + count[b])
-        line = points[run][keep[run], :2]
-        gap = np.hypot(*np.diff(line, axis=0).T) > NODE_RADIUS
+        line = points[run][keep[run]]
+        gap = np.hypot(*np.diff(line[:, :2], axis=0).T) > NODE_RADIUS
         out.append(line[np.concatenate([[True], gap])])
     return out
 
@@ -102,6 +102,6 @@ def _turned(points, keep, borders, left, right, forward) -> np.ndarray:
         return np.zeros(0, dtype=np.int64)
     lefts = _bounds(points, keep, borders.start, borders.count, left)
     rights = _bounds(points, keep, borders.start, borders.count, right)
-    left_inverted, right_inverted = _inversions(lefts, rights)
+    left_inverted, right_inverted, uncertain = _inversions(lefts, rights)
     against = ~np.asarray(forward, dtype=bool)
-    return np.flatnonzero((left_inverted != against) | (right_inverted != against))
+    return np.flatnonzero((left_inverted != against) | (right_inverted != against) | uncertain)
