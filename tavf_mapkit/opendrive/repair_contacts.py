@@ -235,7 +235,7 @@ def _next_id(ids) -> int:
 
 def _ends(road, roads_by_id, table):
     """(start End, end End) of a connecting road this repair can judge, or None."""
-    if not road.in_junction or len(road.lane_sections) != 1 or not road.reference_line.geometries:
+    if not road.in_junction or len(road.lane_sections) != 1 or not len(road.reference_line):
         return None
     lanes = road.lane_sections[0].side_lanes
     if not lanes or len({lane.side for lane in lanes}) != 1 or (road.id, "start") not in table:

@@ -121,14 +121,27 @@ def _dedup(profile: CubicProfile) -> tuple[CubicProfile, int]:
     return (profile, 0) if not len(drop) else (_without(profile, drop), len(drop))
 
 
+def _near_line_pairs(line: ReferenceLine) -> bool:
+    """Whether two consecutive lines of the reference line head alike within ten times ASAM's tolerance: where
+    none do, ``_merged_lines`` merges nothing, and its Geometry per record is not made (after the curves became
+    arcs, a region's roads have hundreds of thousands of records and hardly a pair of lines)."""
+    rows = line.narrow
+    if len(rows) < 2:
+        return False
+    is_line = rows[:, 5] == int(GeometryKind.LINE)
+    turn = np.abs((rows[1:, 3] - rows[:-1, 3] + np.pi) % (2.0 * np.pi) - np.pi)
+    return bool(np.any(is_line[1:] & is_line[:-1] & (turn < 10.0 * EQUATION_TOLERANCE)))
+
+
 def _repaired_road(road):
     """(road, {what: how many merged}) for one road; the very road when nothing is redundant."""
     counts: dict = {}
     changes: dict = {}
-    geometries, merged = _merged_lines(road.reference_line.geometries)
-    if merged:
-        counts["line geometries"] = merged
-        changes["reference_line"] = ReferenceLine(geometries)
+    if _near_line_pairs(road.reference_line):
+        geometries, merged = _merged_lines(road.reference_line.geometries)
+        if merged:
+            counts["line geometries"] = merged
+            changes["reference_line"] = ReferenceLine(geometries)
     for name, label in (("elevation", "elevation"), ("superelevation", "superelevation"),
                         ("lane_offset", "lane offset")):
         profile, dropped = _dedup(getattr(road, name))
