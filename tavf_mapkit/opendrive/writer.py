@@ -356,15 +356,17 @@ def _plan_view_lines(out: list, depth: int, reference_line) -> None:
     pad, inner, num = _PAD[depth], _PAD[depth + 1], _num
     rows = reference_line.narrow if not len(reference_line.side_index) else reference_line.rows
     extra_xml = reference_line.extra_xml or {}
+    # s, x, y, hdg, length and the first parameter of every record spelled at once (``_num`` of each)
+    spelled = [text.removesuffix(".0") for text in map(repr, rows[:, :7].ravel().tolist())]
     for k, row in enumerate(rows.tolist()):
         kind = GeometryKind(int(row[5]))
         tag, names = _GEOMETRY_SPELLING[kind]
-        out.append(f'{pad}<geometry s="{num(row[0])}" x="{num(row[1])}" y="{num(row[2])}" hdg="{num(row[3])}" '
-                   f'length="{num(row[4])}">')
+        s, x, y, hdg, length, _, first = spelled[7 * k:7 * k + 7]
+        out.append(f'{pad}<geometry s="{s}" x="{x}" y="{y}" hdg="{hdg}" length="{length}">')
         if not names:
             out.append(f"{inner}<{tag}/>")
         elif kind is GeometryKind.ARC:
-            out.append(f'{inner}<arc curvature="{num(row[6])}"/>')
+            out.append(f'{inner}<arc curvature="{first}"/>')
         else:
             params = row[6:6 + len(names)]
             shape = {}
