@@ -185,3 +185,23 @@ def test_stream_refuses_a_changed_body_file_when_its_tile_comes(sample_build_dir
         assert pb.getNumBodies(physicsClientId=client) == len(stream.loaded_ids())  # no half-loaded tile
     finally:
         pb.disconnect(client)
+
+
+def test_tiles_of_bodies_are_each_tiles_bodies_in_file_order_with_the_box_of_their_bounds(sample_build_dir):
+    """The stream's tile index (its bodies and the box of their bounds per tile) is what a walk over world.json
+    body by body gives."""
+    from tavf_mapkit.world.loader import read_world
+
+    entries = read_world(sample_build_dir)["bodies"]
+    client = pb.connect(pb.DIRECT)
+    try:
+        stream = TileStream(sample_build_dir, client, radius=10.0)
+    finally:
+        pb.disconnect(client)
+    names = list(dict.fromkeys(e["tile"] for e in entries))
+    assert stream.tile_names == names
+    assert stream.tile_bodies == [[k for k, e in enumerate(entries) if e["tile"] == name] for name in names]
+    for t, name in enumerate(names):
+        bounds = [e["bounds"] for e in entries if e["tile"] == name]
+        assert stream.tile_low[t].tolist() == [min(b[0][0] for b in bounds), min(b[0][1] for b in bounds)]
+        assert stream.tile_high[t].tolist() == [max(b[1][0] for b in bounds), max(b[1][1] for b in bounds)]

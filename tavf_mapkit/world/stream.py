@@ -60,22 +60,19 @@ class TileStream:
 
     def _tiles_of_bodies(self, entries: list) -> None:
         """Per tile (in world.json's order of first appearance): its bodies and the box around their bounds."""
-        number: dict[str, int] = {}
-        members: list[list[int]] = []
-        for k, entry in enumerate(entries):
-            t = number.setdefault(entry["tile"], len(number))
-            if t == len(members):
-                members.append([])
-            members[t].append(k)
-        self.tile_bodies = members
+        names = [entry["tile"] for entry in entries]
+        number = {name: t for t, name in enumerate(dict.fromkeys(names))}
+        tile = np.fromiter((number[name] for name in names), dtype=np.int64, count=len(names))
+        by_tile = np.argsort(tile, kind="stable")  # each tile's bodies in world.json's order
+        cuts = np.cumsum(np.bincount(tile, minlength=len(number)))[:-1]
+        self.tile_bodies = [part.tolist() for part in np.split(by_tile, cuts)] if len(number) else []
         self.tile_names = list(number)
-        low = np.full((len(members), 2), np.inf)
-        high = np.full((len(members), 2), -np.inf)
-        for t, ks in enumerate(members):
-            for k in ks:
-                (lx, ly, *_), (hx, hy, *_) = entries[k]["bounds"]
-                low[t] = np.minimum(low[t], (lx, ly))
-                high[t] = np.maximum(high[t], (hx, hy))
+        # bounds [[x, y, z] low, [x, y, z] high] in one array (a region has tens of thousands of bodies)
+        bounds = np.array([entry["bounds"] for entry in entries], dtype=np.float64).reshape(-1, 2, 3)
+        low = np.full((len(number), 2), np.inf)
+        high = np.full((len(number), 2), -np.inf)
+        np.minimum.at(low, tile, bounds[:, 0, :2])
+        np.maximum.at(high, tile, bounds[:, 1, :2])
         self.tile_low, self.tile_high = low, high  # pybullet frame (OpenDRIVE local - origin)
 
     # ------------------------------------------------------------------ covering
