@@ -102,12 +102,16 @@ def rows_by_name(names: np.ndarray):
     return zip(distinct.tolist(), np.split(order, starts[1:]))
 
 
-def junction_footprints(odr, sampling, raised_rows: np.ndarray, uncovered=None) -> dict[str, object]:
+def junction_footprints(odr, sampling, raised_rows: np.ndarray, uncovered=None,
+                        junction_of_road: np.ndarray | None = None) -> dict[str, object]:
     """junction id -> united footprint of its flat connecting lanes, raised lanes cut out (except where they
     were cut away themselves, ``uncovered``: raised lanes standing on another road's driving lane,
-    ``mesh.stacked``)."""
+    ``mesh.stacked``). ``junction_of_road``: each road's junction id, "" outside junctions
+    (``MeshUnits.road_junction``; read from the roads when not given)."""
     arrays = odr.arrays
-    junction_of_road = np.array([road.junction if road.in_junction else "" for road in odr.roads], dtype=object)
+    if junction_of_road is None:
+        junction_of_road = np.array([road.junction if road.in_junction else "" for road in odr.roads],
+                                    dtype=object)
     rows, polygons = lane_footprints(sampling, junction_of_road[arrays.section_road[arrays.lane_section]] != "")
     if not len(rows):
         return {}
@@ -314,7 +318,10 @@ def _refine(plan: np.ndarray, faces: np.ndarray, height: np.ndarray, lanes: Labe
         mesh_z, under, _, _ = Drape(current, groups=face_group)(targets, groups=target_group)
         target_miss = under[(np.abs(mesh_z - target_z) > eps) & (under >= 0)]
         edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-        unique, edge_of = np.unique(edges, axis=0, return_inverse=True)
+        # distinct edges as one int64 each (first * n + second, second < n): sorted as the rows would be, and
+        # without np.unique(axis=0)'s row-by-row sort
+        code, edge_of = np.unique(edges[:, 0] * len(plan) + edges[:, 1], return_inverse=True)
+        unique = np.column_stack([code // len(plan), code % len(plan)])
         edge_of = edge_of.reshape(-1, 3)  # face edge k runs from corner k to corner k+1
         mid = 0.5 * (plan[unique[:, 0]] + plan[unique[:, 1]])
         centre = plan[faces].mean(axis=1)
@@ -369,15 +376,20 @@ def _split_faces(faces: np.ndarray, mids: np.ndarray) -> np.ndarray:
 
 def junction_surfaces(odr, sampling, lanes: LabelledMesh, raised_rows: np.ndarray, cell: float = 5.0,
                       eps: float = 0.05, min_edge: float = 0.25,
-                      group_of_road: np.ndarray | None = None, uncovered=None) -> JunctionSurfaces:
+                      group_of_road: np.ndarray | None = None, uncovered=None, units=None) -> JunctionSurfaces:
     """Surfaces of every junction. ``lanes`` are the connecting lanes' flat faces (for heights and labels);
     ``group_of_road``: the junction cluster (``mesh.units``) of every road -- a cluster's surfaces are draped on
-    its own connecting lanes only (one cluster for the whole map when not given)."""
-    footprints = junction_footprints(odr, sampling, raised_rows, uncovered)
+    its own connecting lanes only (one cluster for the whole map when not given). ``units``: the map's
+    ``MeshUnits``, for the roads' junctions found once (read from the roads when not given)."""
+    footprints = junction_footprints(odr, sampling, raised_rows, uncovered,
+                                     None if units is None else units.road_junction)
     plans, face_sets, groups, roads, offset = [], [], [], [], 0
-    first_road = {}
-    for index, road in enumerate(odr.roads):
-        first_road.setdefault(road.junction, index)
+    if units is not None:
+        first_road = units.junction_first_road
+    else:
+        first_road = {}
+        for index, road in enumerate(odr.roads):
+            first_road.setdefault(road.junction, index)
     for junction_id, footprint in footprints.items():
         road = first_road.get(junction_id, 0)
         triangles = triangulate_on_grid(footprint, cell, odr.arrays.budget, road)

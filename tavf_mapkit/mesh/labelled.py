@@ -7,7 +7,10 @@ Coordinates are OpenDRIVE local metres (x east, y north, z up) in float64; expor
 from __future__ import annotations
 
 import io
+import struct
+import sys
 import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -56,11 +59,14 @@ class LabelledMesh:
         )
 
     def select(self, face_mask: np.ndarray) -> LabelledMesh:
-        """The faces where ``face_mask`` is true, with unused vertices dropped."""
+        """The faces where ``face_mask`` is true (a mask or ascending indices), with unused vertices dropped."""
+        return self.select_with_vertices(face_mask)[0]
+
+    def select_with_vertices(self, face_mask: np.ndarray) -> tuple[LabelledMesh, np.ndarray]:
+        """(``select(face_mask)``, the indices of the vertices it kept, ascending): for callers that carry
+        per-vertex data of their own (``spill.Keyed``), without finding the used vertices twice."""
         used, faces = used_vertices(self.faces[face_mask], len(self.vertices))
-        return LabelledMesh(self.vertices[used], faces,
-                            self.road_index[face_mask], self.lane_id[face_mask], self.kind[face_mask],
-                            None if self.uv is None else self.uv[used])
+        return self._rebuilt(self.vertices[used], faces, face_mask, None if self.uv is None else self.uv[used]), used
 
     def grouped(self, face_group: np.ndarray):
         """The same mesh with its faces (and vertices) ordered by ``face_group``, keeping their order inside a
@@ -112,7 +118,45 @@ def used_vertices(faces: np.ndarray, vertex_count: int) -> tuple[np.ndarray, np.
 
 
 def npz_bytes(arrays: dict[str, np.ndarray | None]) -> bytes:
-    """Arrays (None ones left out) as an uncompressed ``.npz``; fixed zip timestamps make it byte-reproducible."""
+    """Arrays (None ones left out) as an uncompressed ``.npz``; fixed zip timestamps make it byte-reproducible.
+
+    The zip is written directly, byte for byte what ``zipfile`` writes for ``writestr(ZipInfo(name,
+    date_time=(1980, 1, 1, 0, 0, 0)), data)`` with ZIP_STORED into a seekable buffer (tests/test_mesh_npz.py
+    compares both): zipfile's per-member bookkeeping was most of the time of a build's thousands of labelled
+    tiles."""
+    headers, central, offset = [], [], 0
+    for name, value in arrays.items():
+        if value is None:
+            continue
+        member = io.BytesIO()
+        np.lib.format.write_array(member, np.ascontiguousarray(value), allow_pickle=False)
+        data = member.getvalue()
+        filename = f"{name}.npy".encode("ascii")
+        if len(data) > _ZIP64_MEMBER:
+            return _npz_bytes_zipfile(arrays)  # zip64 records: leave them to zipfile
+        crc = zlib.crc32(data)
+        fields = (_ZIP_VERSION, 0, zipfile.ZIP_STORED, 0, _DOS_DATE_1980, crc, len(data), len(data), len(filename))
+        local = struct.pack("<4s5HL2L2H", b"PK\x03\x04", *fields, 0) + filename
+        central.append(struct.pack("<4s6H3L5H2L", b"PK\x01\x02", _ZIP_VERSION | _CREATE_SYSTEM << 8,
+                                   *fields, 0, 0, 0, 0, _EXTERNAL_ATTR, offset) + filename)
+        headers.append(local + data)
+        offset += len(local) + len(data)
+    directory = b"".join(central)
+    if offset + len(directory) > _ZIP64_MEMBER:
+        return _npz_bytes_zipfile(arrays)
+    end = struct.pack("<4s4H2LH", b"PK\x05\x06", 0, 0, len(central), len(central), len(directory), offset, 0)
+    return b"".join(headers) + directory + end
+
+
+_ZIP_VERSION = 20                       # zipfile's default "version needed" / "made by"
+_CREATE_SYSTEM = 0 if sys.platform == "win32" else 3
+_EXTERNAL_ATTR = 0o600 << 16            # what zipfile gives a member written without attributes
+_DOS_DATE_1980 = (0 << 9) | (1 << 5) | 1  # 1980-01-01; the DOS time 00:00:00 is 0
+_ZIP64_MEMBER = 0x7FFFFFFF // 2         # members this large need zip64 records (zipfile's own threshold is lower)
+
+
+def _npz_bytes_zipfile(arrays: dict[str, np.ndarray | None]) -> bytes:
+    """``npz_bytes`` through ``zipfile`` (the reference the direct writer is checked against)."""
     buffer = io.BytesIO()
     with zipfile.ZipFile(buffer, "w", zipfile.ZIP_STORED) as archive:
         for name, value in arrays.items():

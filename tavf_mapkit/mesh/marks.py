@@ -41,11 +41,6 @@ class RoadMarkMesh(LabelledMesh):
 
     colour: np.ndarray | None = None  # (M,) int8
 
-    def select(self, face_mask: np.ndarray) -> RoadMarkMesh:
-        base = LabelledMesh.select(self, face_mask)
-        return RoadMarkMesh(base.vertices, base.faces, base.road_index, base.lane_id, base.kind, base.uv,
-                            self.colour[face_mask])
-
     def _rebuilt(self, vertices, faces, face_index, uv):
         base = LabelledMesh._rebuilt(self, vertices, faces, face_index, uv)
         return RoadMarkMesh(base.vertices, base.faces, base.road_index, base.lane_id, base.kind, base.uv,

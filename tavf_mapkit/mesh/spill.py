@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tavf_mapkit.mesh.labelled import LabelledMesh, used_vertices
+from tavf_mapkit.mesh.labelled import LabelledMesh
 
 _LABELS = ("road_index", "lane_id", "kind")
 
@@ -32,8 +32,7 @@ class Keyed:
 
     def select(self, face_index: np.ndarray) -> Keyed:
         """The faces at ascending ``face_index`` and the vertices they use (keys kept)."""
-        used = used_vertices(self.mesh.faces[face_index], len(self.mesh.vertices))[0]
-        part = self.mesh.select(face_index)
+        part, used = self.mesh.select_with_vertices(face_index)
         return Keyed(part, self.face_key[face_index], self.vertex_key[used])
 
     def arrays(self) -> dict:

@@ -10,9 +10,8 @@ import shapely
 from tavf_mapkit.mesh.adaptive import AdaptiveSamples, adaptive_samples
 from tavf_mapkit.mesh.cleanup import drop_degenerate
 from tavf_mapkit.mesh.junctions import junction_surfaces
-from tavf_mapkit.mesh.kinds import lane_kind_codes
 from tavf_mapkit.mesh.labelled import KIND_CODE, LabelledMesh
-from tavf_mapkit.mesh.lanes import build_lane_meshes, raised_lane_rows
+from tavf_mapkit.mesh.lanes import build_lane_meshes
 from tavf_mapkit.mesh.stacked import cut_stacked_roadside
 from tavf_mapkit.mesh.units import MeshUnits, mesh_units
 from tavf_mapkit.opendrive.sampling import sample_lanes_at
@@ -46,8 +45,8 @@ def build_road_surface(odr, eps: float = DEFAULT_EPS, junction_cell: float = JUN
     samples = adaptive_samples(odr, eps, max_segment, sections=sections)
     sampling = sample_lanes_at(odr, samples.section, samples.s)
     lanes, face_row = build_lane_meshes(odr, sampling)
-    in_junction = np.array([road.in_junction for road in odr.roads] + [False], dtype=bool)
-    raised = raised_lane_rows(arrays)
+    in_junction = np.r_[units.in_junction, False]
+    raised = units.raised_rows
     junction_face = (in_junction[lanes.road_index] & ~raised[face_row] if len(face_row)
                      else np.zeros(0, dtype=bool)) & (lanes.kind != KIND_CODE["curb"])
     junction_lanes = lanes.select(junction_face)
@@ -57,7 +56,7 @@ def build_road_surface(odr, eps: float = DEFAULT_EPS, junction_cell: float = JUN
                                               _driving_around(odr, lanes, units, roads, eps, max_segment))
     uncovered = [region for road, region in sorted(stacked.items()) if in_junction[road]]
     junctions = junction_surfaces(odr, sampling, junction_lanes, raised, junction_cell, eps,
-                                  group_of_road=units.road_unit,
+                                  group_of_road=units.road_unit, units=units,
                                   uncovered=shapely.union_all(uncovered) if uncovered else None)
     mesh = drop_degenerate(LabelledMesh.concatenate([own_lanes, junctions.mesh]))
     mesh = mesh.grouped(units.road_unit[mesh.road_index])
@@ -74,11 +73,9 @@ def _driving_around(odr, lanes: LabelledMesh, units: MeshUnits, roads: np.ndarra
     meshed = np.unique(lanes.road_index) if roads is None else np.asarray(roads)
     if not len(roadside):
         return lanes.select(driving)
-    boxes = shapely.box(*units.road_box.T)
-    _, near = shapely.STRtree(boxes).query(boxes[roadside], predicate="intersects")
-    missing = np.setdiff1d(np.unique(near), meshed)
+    missing = np.setdiff1d(units.roads_meeting(roadside), meshed)
     missing = missing[np.isin(missing, odr.arrays.section_road[odr.arrays.lane_section[
-        lane_kind_codes(odr.arrays.lane_type) == KIND_CODE["driving"]]])]
+        units.lane_kind == KIND_CODE["driving"]]])]
     if not len(missing):
         return lanes.select(driving)
     sections = np.flatnonzero(np.isin(odr.arrays.section_road, missing))

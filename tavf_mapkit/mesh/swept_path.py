@@ -17,7 +17,8 @@ import numpy as np
 import shapely
 
 from tavf_mapkit.mesh.exact import RunTable, run_cumsum
-from tavf_mapkit.mesh.kinds import LANE_TYPE_KIND
+from tavf_mapkit.mesh.kinds import lane_kind_codes
+from tavf_mapkit.mesh.labelled import KIND_CODE
 from tavf_mapkit.opendrive.sampling import sample_lanes_at, section_samples
 
 DESIGN_HALF_WIDTH = 1.0   # m: half the width of a large passenger car (design vehicle, mirrors folded)
@@ -150,7 +151,7 @@ def centre_pieces(odr, roads: np.ndarray | None = None) -> tuple[np.ndarray, np.
     rows = (np.arange(len(arrays.lane_id)) if roads is None
             else np.flatnonzero(np.isin(arrays.section_road[arrays.lane_section], roads)))
     driving = np.zeros(len(arrays.lane_id), dtype=bool)
-    driving[rows] = [LANE_TYPE_KIND.get(str(t).lower(), "other") == "driving" for t in arrays.lane_type[rows]]
+    driving[rows] = lane_kind_codes(arrays.lane_type[rows]) == KIND_CODE["driving"]
     sections = np.unique(arrays.lane_section[driving])
     if not len(sections):
         return np.zeros(0, dtype=object), np.zeros(0), np.zeros(0, dtype=np.int64)

@@ -192,7 +192,7 @@ def _mesh_batch(odr, units, roads, eps, spill_grid: TileGrid, stores, tally, sol
         _spill(stores["marks"], keyed_by_group(painted, units.road_unit[painted.road_index]), spill_grid, tally,
                "marks")
     if solids:
-        _road_solids(odr, roads, keyed.mesh, eps, stores, tally, spill_grid)
+        _road_solids(odr, units, roads, keyed.mesh, eps, stores, tally, spill_grid)
 
 
 def _cluster_boxes(keyed: Keyed, tally: _Tally) -> None:
@@ -222,15 +222,14 @@ def _spill(store: ChunkStore, keyed: Keyed, spill_grid: TileGrid, tally: _Tally,
         store.add(index, keyed.select(faces).arrays())
 
 
-def _road_solids(odr, roads, surface: LabelledMesh, eps, stores, tally, spill_grid: TileGrid) -> None:
+def _road_solids(odr, units, roads, surface: LabelledMesh, eps, stores, tally, spill_grid: TileGrid) -> None:
     """Curbs of raised lanes, objects and signals: each road's own, keyed (producer, road, number)."""
-    from tavf_mapkit.mesh.lanes import raised_lane_rows
     from tavf_mapkit.mesh.solid_curbs import curb_solids
     from tavf_mapkit.mesh.solid_objects import object_solids
     from tavf_mapkit.mesh.solid_signals import signal_solids
 
     arrays = odr.arrays
-    raised = set(np.unique(arrays.section_road[arrays.lane_section[raised_lane_rows(arrays)]]).tolist())
+    raised = set(np.unique(arrays.section_road[arrays.lane_section[units.raised_rows]]).tolist())
     order = np.argsort(surface.road_index, kind="stable")
     bounds = np.searchsorted(surface.road_index[order], [roads, roads + 1])
     made, skipped = [], []
@@ -641,10 +640,14 @@ class _Regrid:
             return self.cache.get(key)
         chunks = self.store.get(key)
         if self.name == "whole":
+            from tavf_mapkit.mesh.solids import SceneSolids
+
             groups = {}
             for data in chunks:
+                solids = SceneSolids.from_arrays(data).solids  # once per chunk, not once per tile it reaches
                 for tile, members in group_by_tile(_solid_tiles(self.grid, data)).items():
-                    groups.setdefault(tile, []).append(_subset_solids(data, members))
+                    groups.setdefault(tile, []).append(
+                        _solid_arrays([solids[k] for k in members.tolist()], data["solid_key"][members]))
             entry = (None, groups)
         else:
             merged = merge([from_arrays(data, self.name == "marks") for data in chunks])
@@ -666,19 +669,16 @@ class _Regrid:
 
 def _solid_tiles(grid: TileGrid, data: dict) -> np.ndarray:
     """The tile of each solid of a spilled chunk (of its bounding box's centre, as ``mesh.tiles.solid_tiles``)."""
-    ends = np.cumsum(data["solid_vertices"])
-    starts = ends - data["solid_vertices"]
+    counts = np.asarray(data["solid_vertices"], dtype=np.int64)
     vertices = data["vertices"]
-    spans = list(zip(starts.tolist(), ends.tolist()))
-    return grid.tile_of_boxes(np.array([vertices[a:b].min(axis=0) for a, b in spans]).reshape(-1, 3),
-                              np.array([vertices[a:b].max(axis=0) for a, b in spans]).reshape(-1, 3))
-
-
-def _subset_solids(data: dict, members: np.ndarray) -> dict:
-    from tavf_mapkit.mesh.solids import SceneSolids
-
-    solids = SceneSolids.from_arrays(data).solids
-    return _solid_arrays([solids[k] for k in members.tolist()], data["solid_key"][members])
+    if not len(counts):
+        return np.zeros((0, 2), dtype=np.int64)
+    if np.any(counts <= 0):
+        raise ValueError("a spilled solid without vertices")
+    starts = np.cumsum(counts) - counts
+    # each solid's vertices are one span: its box is a min and max reduced over that span
+    return grid.tile_of_boxes(np.minimum.reduceat(vertices, starts, axis=0),
+                              np.maximum.reduceat(vertices, starts, axis=0))
 
 
 @dataclass

@@ -28,6 +28,7 @@ BOX_MARGIN = 2.0         # m added around every coarse box (chord error of a 5 m
 CLUSTER_GAP = 1.0        # m: junctions whose coarse boxes come this close are one cluster
 BLOCK = 8                # tiles per side of the blocks that order batches
 CHUNK_SAMPLES = 200_000  # samples per pass of the coarse boxes (bounded memory)
+MEETING_CHUNK = 256      # roads per step of ``MeshUnits.roads_meeting``
 
 
 @dataclass(frozen=True, eq=False)
@@ -39,6 +40,13 @@ class MeshUnits:
     unit_box: np.ndarray        # (U, 4)
     unit_work: np.ndarray       # (U,) metres of lane (section length x lanes, the reference line at least)
     unit_junctions: tuple       # per unit: the junction ids of a cluster (empty for a plain road)
+    # whole-map facts every batch asks for, found once here (a per-batch pass over every road or lane made the
+    # mesh stage grow with batches x map, quadratic at region scale):
+    road_junction: np.ndarray   # (R,) object: the junction id of a connecting road, "" for any other road
+    lane_kind: np.ndarray       # (L,) int16 KIND_CODE of every lane row's type (``kinds.lane_kind_codes``)
+    raised_rows: np.ndarray     # (L,) bool: the lane has a non-zero height somewhere (``lanes.raised_lane_rows``)
+    in_junction: np.ndarray     # (R,) bool: the road is a connecting road of a junction
+    junction_first_road: dict   # junction id -> index of its first connecting road
 
     @property
     def count(self) -> int:
@@ -59,6 +67,22 @@ class MeshUnits:
     def anchor(self) -> np.ndarray:
         """(U, 2) centre of every unit's coarse box."""
         return 0.5 * (self.unit_box[:, :2] + self.unit_box[:, 2:])
+
+    def roads_meeting(self, roads: np.ndarray) -> np.ndarray:
+        """Roads whose coarse box meets (touching counts) the coarse box of one of ``roads``, ascending."""
+        roads = np.asarray(roads, dtype=np.int64)
+        if not len(roads):
+            return np.zeros(0, dtype=np.int64)
+        mine = self.road_box[roads]
+        # one pass over the map for the box around all of them, then the exact test on those candidates only
+        candidates = self.roads_near(np.concatenate([mine[:, :2].min(axis=0), mine[:, 2:].max(axis=0)]), 0.0)
+        b = self.road_box[candidates]
+        met = np.zeros(len(candidates), dtype=bool)
+        for start in range(0, len(roads), MEETING_CHUNK):  # bounded memory: chunk x candidates booleans
+            m = mine[start:start + MEETING_CHUNK]
+            met |= np.any((b[None, :, 0] <= m[:, None, 2]) & (b[None, :, 2] >= m[:, None, 0])
+                          & (b[None, :, 1] <= m[:, None, 3]) & (b[None, :, 3] >= m[:, None, 1]), axis=0)
+        return candidates[met]
 
     def roads_near(self, box, reach: float) -> np.ndarray:
         """Roads whose coarse box comes within ``reach`` of ``box`` (west, south, east, north), ascending."""
@@ -91,6 +115,9 @@ class MeshUnits:
 
 def mesh_units(odr) -> MeshUnits:
     """Units, coarse boxes and clusters of a map (a few numpy passes over the map, bounded memory)."""
+    from tavf_mapkit.mesh.kinds import lane_kind_codes
+    from tavf_mapkit.mesh.lanes import raised_lane_rows
+
     arrays = odr.arrays
     n_roads = len(odr.roads)
     road_box = coarse_road_boxes(odr)
@@ -121,8 +148,14 @@ def mesh_units(odr) -> MeshUnits:
     section_work = (arrays.section_end - arrays.section_s0) * np.maximum(lane_count, 1)
     road_work = np.bincount(arrays.section_road, weights=section_work, minlength=n_roads)
     unit_work = np.bincount(road_unit, weights=road_work, minlength=len(firsts))
+    road_junction = np.array(["" if j is None else j for j in junction_of_road], dtype=object)
+    first_road: dict = {}
+    for road, junction in enumerate(junction_of_road):
+        if junction is not None:
+            first_road.setdefault(junction, road)
     return MeshUnits(road_unit, unit_start, order.astype(np.int64), road_box, unit_box, unit_work,
-                     tuple(tuple(j) for j in junctions_of_unit))
+                     tuple(tuple(j) for j in junctions_of_unit), road_junction, lane_kind_codes(arrays.lane_type),
+                     raised_lane_rows(arrays), road_junction != "", first_road)
 
 
 def coarse_road_boxes(odr) -> np.ndarray:
