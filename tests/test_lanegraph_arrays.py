@@ -195,3 +195,29 @@ def test_samples_of_some_lanes_are_those_of_the_whole_table(tavf_xodr):
     # each lane's box holds its samples
     box = graph._table.box[row]
     assert np.all((xy >= box[:, :2]) & (xy <= box[:, 2:]))
+
+
+def test_a_graph_builds_its_lane_table_only_when_lengths_are_asked_for(tavf_xodr):
+    """A drive's start needs the topology and the lanes' lines, not the lane table (on a region the largest part
+    of the graph): from_opendrive and the random routes leave it unbuilt; built later, the lengths, ends and edge
+    weights are those of a graph given the table at once."""
+    from tavf_mapkit.lanegraph.geometry import LaneTable
+    from twin.map.lanelines import LaneLines
+    from twin.planning.random_routes import RandomRoutes
+
+    odr = load_opendrive(tavf_xodr)
+    lazy = LaneGraph.from_opendrive(odr)
+    RandomRoutes(lazy, LaneLines(lazy))
+    assert "_table" not in lazy.__dict__
+    topology = lazy._topology
+    assert np.all(np.isnan(topology.weight[topology.kind == 0]))  # follow edges: the lane they leave, later
+    table = LaneTable.build(odr, 1.0, keep_samples=False)
+    eager = LaneGraph(odr, lazy.keys, lazy._row, lazy._ahead, topology, table, 1.0, lazy.lane_types)
+    assert lazy.edges.weight.tolist() == eager.edges.weight.tolist()
+    follow = lazy.edges.kind == 0
+    assert np.array_equal(lazy.edges.weight[follow], table.length[lazy._row[lazy.edges.source[follow]]])
+    assert [lazy.length(k) for k in lazy.keys] == [eager.length(k) for k in eager.keys]
+    assert [lazy.start(k) + lazy.end(k) for k in lazy.keys] == [eager.start(k) + eager.end(k) for k in eager.keys]
+    some = lazy.keys[::max(len(lazy.keys) // 20, 1)]
+    assert all(lazy.shortest_path(a, b) == eager.shortest_path(a, b) for a, b in itertools.pairwise(some)
+               if eager.distances_from(a).get(b) is not None)

@@ -46,21 +46,53 @@ class LaneGraph:
     are arrays (``edges``, an ``EdgeArrays``): a region's graph is a few MB, not a dict per lane and edge."""
 
     def __init__(self, odr, keys: list[LaneKey], lane_rows: np.ndarray, forward: np.ndarray, edges: EdgeArrays,
-                 table: LaneTable, step: float = 1.0, lane_types: frozenset[str] = frozenset({"driving"})):
+                 table: LaneTable | None = None, step: float = 1.0,
+                 lane_types: frozenset[str] = frozenset({"driving"})):
         self.odr = odr
         self._keys = keys
         self._index = {key: i for i, key in enumerate(keys)}
-        self._row = lane_rows  # the lane's row of odr.arrays
+        self._row = np.asarray(lane_rows, dtype=np.int64)  # the lane's row of odr.arrays
         self._ahead = forward  # drives with s
-        self.edges = edges
-        self._table = table
-        rows = np.asarray(lane_rows, dtype=np.int64)
-        first, last = table.first[rows, :2], table.last[rows, :2]
-        self._length = np.asarray(table.length[rows], dtype=np.float64)
-        self._start = np.where(forward[:, None], first, last)  # centre line's start in driving direction
-        self._end = np.where(forward[:, None], last, first)
+        # the edges as built; a follow edge's weight may be NaN until the lane lengths are known (``edges``)
+        self._topology = edges
+        if table is not None:
+            self.__dict__["_table"] = table
         self.step = step  # m between the table's centre-line samples
         self.lane_types = lane_types
+
+    # the lane table (lengths, end points, boxes: every lane sampled at ``step``) is built when first asked
+    # for: a random drive needs only the graph's topology at its start, and on a region the table is the
+    # largest part of the graph (59,133 roads: some 10 s)
+    @cached_property
+    def _table(self) -> LaneTable:
+        return LaneTable.build(self.odr, self.step, keep_samples=False)
+
+    @cached_property
+    def _length(self) -> np.ndarray:
+        return np.asarray(self._table.length[self._row], dtype=np.float64)
+
+    @cached_property
+    def _start(self) -> np.ndarray:
+        """The centre line's start in driving direction, per lane."""
+        first, last = self._table.first[self._row, :2], self._table.last[self._row, :2]
+        return np.where(self._ahead[:, None], first, last)
+
+    @cached_property
+    def _end(self) -> np.ndarray:
+        first, last = self._table.first[self._row, :2], self._table.last[self._row, :2]
+        return np.where(self._ahead[:, None], last, first)
+
+    @cached_property
+    def edges(self) -> EdgeArrays:
+        """The edges with their weights: a follow edge costs the length of the lane it leaves (filled in here,
+        on first use, where ``from_opendrive`` left them NaN)."""
+        topology = self._topology
+        unknown = np.isnan(topology.weight)
+        if not np.any(unknown):
+            return topology
+        weight = topology.weight.copy()
+        weight[unknown] = self._length[topology.source[unknown]]
+        return EdgeArrays(topology.n, topology.indptr, topology.target, topology.kind, weight)
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -70,8 +102,6 @@ class LaneGraph:
         same-direction neighbours where the road mark between them allows it."""
         arrays = odr.arrays
         types = set(lane_types)
-        # lengths, end points and boxes; the centre-line samples only when asked (``samples``, ``locator``)
-        table = LaneTable.build(odr, step, keep_samples=False)
         section_first = np.searchsorted(arrays.section_road, np.arange(len(odr.roads)), side="left")
         keys: list[LaneKey] = []
         rows: list[int] = []
@@ -88,7 +118,6 @@ class LaneGraph:
             rows.append(row)
             ahead.append(drives_with_s(road, lane))
         index = {key: i for i, key in enumerate(keys)}
-        length = table.length[np.asarray(rows, dtype=np.int64)].astype(np.float64)
         # edges in the order networkx's graph had them (routing's tie-breaks depend on it): follow edges in
         # the order of the map's links, then the lane changes lane by lane
         source: list[int] = []
@@ -103,7 +132,8 @@ class LaneGraph:
                     source.append(i)
                     target.append(j)
         del exits, entries
-        weight = length[np.asarray(source, dtype=np.int64)].tolist()  # a follow edge costs the lane it leaves
+        # a follow edge costs the lane it leaves: NaN until the lengths are known (``edges``)
+        weight = [np.nan] * len(source)
         kind = [FOLLOW] * len(source)
         for i, (key, forward) in enumerate(zip(keys, ahead)):
             road = odr.roads[key.road_index]
@@ -120,7 +150,7 @@ class LaneGraph:
                     kind.append(code)
                     weight.append(float(lane_change_cost))
         edges = EdgeArrays.from_edges(len(keys), source, target, kind, weight)
-        return cls(odr, keys, np.asarray(rows, dtype=np.int64), np.asarray(ahead, dtype=bool), edges, table, step,
+        return cls(odr, keys, np.asarray(rows, dtype=np.int64), np.asarray(ahead, dtype=bool), edges, None, step,
                    frozenset(types))
 
     def to_networkx(self):
@@ -182,7 +212,7 @@ class LaneGraph:
     # ------------------------------------------------------------------ edges
     def edge_list(self) -> list[tuple[LaneKey, LaneKey, str]]:
         """Every edge as (from, to, kind), lane by lane in node order, each lane's edges in the order added."""
-        keys, edges = self._keys, self.edges
+        keys, edges = self._keys, self._topology
         kinds = [KIND_NAMES[k] for k in edges.kind.tolist()]
         return [(keys[i], keys[j], kind) for i, j, kind in zip(edges.source.tolist(), edges.target.tolist(), kinds)]
 
@@ -197,8 +227,8 @@ class LaneGraph:
         i, j = self._index.get(a), self._index.get(b)
         if i is None or j is None:
             return None
-        e = self.edges.find(i, j)
-        return None if e < 0 else KIND_NAMES[self.edges.kind[e]]
+        e = self._topology.find(i, j)
+        return None if e < 0 else KIND_NAMES[self._topology.kind[e]]
 
     def has_edge(self, a: LaneKey, b: LaneKey) -> bool:
         return self.edge_kind(a, b) is not None
@@ -216,19 +246,25 @@ class LaneGraph:
 
     def successors(self, key: LaneKey) -> list[LaneKey]:
         """Lanes the lane leads into (follow edges only), sorted for determinism."""
-        indptr, target, kind, _ = self.edges.lists
+        indptr, target, kind, _ = self._topology.lists
         i = self._index[key]
         return sorted(self._keys[target[e]] for e in range(indptr[i], indptr[i + 1]) if kind[e] == FOLLOW)
 
+    def follow_edges(self) -> tuple[np.ndarray, np.ndarray]:
+        """(source, target) node numbers of every follow edge (row order): ``successors`` of all lanes at once."""
+        topology = self._topology
+        follow = topology.kind == FOLLOW
+        return topology.source[follow], topology.target[follow]
+
     def lane_changes(self, key: LaneKey) -> list[LaneKey]:
         """Lanes the lane may change into (left/right edges), in the order added."""
-        indptr, target, kind, _ = self.edges.lists
+        indptr, target, kind, _ = self._topology.lists
         i = self._index[key]
         return [self._keys[target[e]] for e in range(indptr[i], indptr[i + 1]) if kind[e] != FOLLOW]
 
     def predecessors(self, key: LaneKey) -> list[LaneKey]:
         """Lanes that lead into the lane (follow edges only), sorted."""
-        edges = self.edges
+        edges = self._topology
         indptr, incoming = edges.incoming
         j = self._index[key]
         found = incoming[indptr[j]:indptr[j + 1]]
@@ -325,7 +361,7 @@ class LaneGraph:
 
     def strongly_connected_components(self) -> list[frozenset]:
         """Every set of lanes from which each lane of the set can reach the others."""
-        count_, labels = self.edges.strong_labels()
+        count_, labels = self._topology.strong_labels()
         members: list[list[LaneKey]] = [[] for _ in range(count_)]
         for key, label in zip(self._keys, labels.tolist()):
             members[label].append(key)
@@ -342,7 +378,7 @@ class LaneGraph:
         """(lane-table row, road s, plan-view point) of the centre-line samples at the graph's step of its lanes
         (or of the lane-table rows in the mask ``rows``), sorted by row then s; evaluated when asked, not kept
         (a region's are 200 MB)."""
-        wanted = np.zeros(len(self._table.length), dtype=bool)
+        wanted = np.zeros(len(self.odr.arrays.lane_id), dtype=bool)
         wanted[self._row] = True
         if rows is not None:
             wanted &= rows

@@ -233,10 +233,17 @@ class _EndsTable:
             self._parts = [(length, head_n, head, head_along, tail_n, tail, tail_along)]
             self._arrays = (length, np.r_[0, np.cumsum(head_n)], head, head_along, np.r_[0, np.cumsum(tail_n)],
                             tail, tail_along)
+            self._lengths = length.tolist()
         return self._arrays
 
     def length(self, key: LaneKey) -> float:
-        return float(self._joined()[0][self.index[key]])
+        return self.length_at(self.index[key])
+
+    def length_at(self, i: int) -> float:
+        """The length of the i-th lane added (route selection asks hundreds of thousands of times: a list)."""
+        if self._arrays is None:
+            self._joined()
+        return self._lengths[i]
 
     def arrays(self) -> EndsArrays:
         """The whole table as flat arrays (``EndsArrays``), for measuring many lanes at once."""
@@ -260,6 +267,7 @@ class LaneLines:
         self.step = step
         self._cache: dict[LaneKey, LaneLine] = {}
         self._ends = _EndsTable()
+        self._known_lengths: dict[LaneKey, float] = {}  # lengths known without the lines (``remember_lengths``)
 
     def scan(self, keys):
         """The lines of ``keys`` (lists of ``LaneLine``, in order), batch by batch, not kept: a region's lines
@@ -290,9 +298,16 @@ class LaneLines:
 
     def length(self, key: LaneKey) -> float:
         """The length of the lane's line (m)."""
-        if key in self._ends:
-            return self._ends.length(key)
-        return self[key].length
+        i = self._ends.index.get(key)
+        if i is not None:
+            return self._ends.length_at(i)
+        known = self._known_lengths.get(key)
+        return known if known is not None else self[key].length
+
+    def remember_lengths(self, keys, lengths) -> None:
+        """Lengths of these lanes' lines, as ``length`` gave them before (a saved route plan): their lines are
+        then built only when asked for."""
+        self._known_lengths.update(zip(keys, lengths))
 
     def __getitem__(self, key: LaneKey) -> LaneLine:
         line = self._cache.get(key)
@@ -340,11 +355,15 @@ class LaneLines:
 
 
 def lane_batches(graph: LaneGraph, keys: list[LaneKey], step: float):
-    """``keys`` in runs of about ``BATCH_POINTS`` centre-line points each (estimated from the lanes' lengths),
-    so a region's lines are evaluated and measured in bounded memory; every line is its own, batches or not."""
+    """``keys`` in runs of about ``BATCH_POINTS`` centre-line points each (estimated from the lane sections'
+    lengths in s, which set how many points ``centerlines`` takes: not the lanes' own lengths, which would
+    sample the whole map once more before its lines), so a region's lines are evaluated and measured in bounded
+    memory; every line is its own, batches or not."""
     if not keys:
         return
-    estimate = np.array([graph.length(k) for k in keys]) / step + 2.0
+    arrays = graph.odr.arrays
+    section = arrays.lane_section[np.array([graph.row(k) for k in keys], dtype=np.int64)]
+    estimate = (arrays.section_end[section] - arrays.section_s0[section]) / step + 2.0
     batch = (np.cumsum(estimate) // BATCH_POINTS).astype(np.int64)
     cuts = np.flatnonzero(np.diff(batch)) + 1
     for lo, hi in zip(np.r_[0, cuts].tolist(), np.r_[cuts, len(keys)].tolist()):

@@ -188,9 +188,19 @@ def lane_transitions(graph: LaneGraph, lines: LaneLines, undrivable: dict[LaneKe
         return k not in undrivable and lines.length(k) >= DEGENERATE_LANE
 
     result = Transitions()
-    candidates: list[tuple[LaneKey, LaneKey]] = []
-    for a in sorted(k for k in graph.keys if usable(k)):
+    keys = graph.keys
+    usable_node = np.fromiter((usable(k) for k in keys), dtype=bool, count=len(keys))
+    for a in sorted(keys[i] for i in np.flatnonzero(usable_node).tolist()):
         result.follow[a], result.u_turn[a] = [], []
+    # a lane whose successors are all usable steps straight into them (nearly every lane of a region): its
+    # candidates at once; the walk below only for lanes with a sub-metre, U-turn or undrivable lane ahead
+    source, target = graph.follow_edges()
+    walk = np.zeros(len(keys), dtype=bool)
+    walk[source[~usable_node[target]]] = True
+    direct = usable_node[source] & ~walk[source]
+    candidates: list[tuple[LaneKey, LaneKey]] = [(keys[i], keys[j]) for i, j in
+                                                 zip(source[direct].tolist(), target[direct].tolist())]
+    for a in sorted(keys[i] for i in np.flatnonzero(usable_node & walk).tolist()):
         frontier, seen, turned_to = [(a, False)], set(), set()
         for _ in range(CHAIN + 1):
             ahead = []

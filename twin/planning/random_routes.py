@@ -85,6 +85,76 @@ class RandomRoutes:
         self._turnaround = {k: v[0] for k, v in turnaround.items() if k in lanes and v[0] in lanes}
         self._towards = self._lane_changes_to_exits()
 
+    # ------------------------------------------------------------------ kept between drives
+    @classmethod
+    def cached(cls, graph: LaneGraph, lines: LaneLines, xodr, map_sha256: str, max_cut: float = MAX_CUT,
+               lane_change_probability: float = 0.2) -> RandomRoutes:
+        """``RandomRoutes(graph, lines, ...)``, read from the plan a drive on the same map and code saved
+        (``twin.planning.route_cache``) when there is one, else computed and saved. Read back, the routes
+        have no ``undrivable`` and ``transitions`` (None): the walk needs neither."""
+        from twin.planning import route_cache
+
+        path = route_cache.plan_path(xodr, map_sha256, max_cut, lane_change_probability, lines.step,
+                                     graph.lane_types)
+        if path is None:
+            return cls(graph, lines, max_cut, lane_change_probability)
+        plan = route_cache.load_plan(path, graph)
+        if plan is not None:
+            return cls.from_plan(graph, lines, plan, lane_change_probability)
+        routes = cls(graph, lines, max_cut, lane_change_probability)
+        route_cache.save_plan(path, {**routes.plan(), **route_cache.graph_arrays(graph),
+                                     "graph": np.array(route_cache.keys_digest(graph))})
+        return routes
+
+    def plan(self) -> dict[str, np.ndarray]:
+        """What the walk needs, by node number of the lane graph (``from_plan`` reads it back)."""
+        graph = self.graph
+
+        def nodes(keys):
+            return np.array([graph.node(k) for k in keys], dtype=np.int64)
+
+        def table(mapping, owners):
+            lists = [mapping[k] for k in owners]
+            return np.r_[0, np.cumsum([len(v) for v in lists])].astype(np.int64), nodes(k for v in lists for k in v)
+
+        follow_at, follow = table(self._follow, self._sorted)
+        lateral_at, lateral = table(self._lateral, self._sorted)
+        towards_from = list(self._towards)
+        towards_at, towards = table(self._towards, towards_from)
+        return {"mode": np.array(self.mode), "lanes": nodes(self._sorted),
+                "length": np.array([self.lines.length(k) for k in self._sorted], dtype=np.float64),
+                "follow_at": follow_at, "follow": follow, "lateral_at": lateral_at, "lateral": lateral,
+                "towards_from": nodes(towards_from), "towards_at": towards_at, "towards": towards,
+                "turnaround_from": nodes(self._turnaround), "turnaround_to": nodes(self._turnaround.values())}
+
+    @classmethod
+    def from_plan(cls, graph: LaneGraph, lines: LaneLines, plan: dict,
+                  lane_change_probability: float = 0.2) -> RandomRoutes:
+        """The routes of a saved ``plan``; the lanes' lengths are handed to ``lines`` (no line is built)."""
+        routes = cls.__new__(cls)
+        routes.graph, routes.lines = graph, lines
+        routes.lane_change_probability = lane_change_probability
+        routes.undrivable = routes.transitions = None
+        keys = graph.keys
+
+        def lanes(nodes):
+            return [keys[i] for i in nodes.tolist()]
+
+        def table(owners, at, targets):
+            targets = lanes(targets)
+            at = at.tolist()
+            return {k: targets[at[i]:at[i + 1]] for i, k in enumerate(owners)}
+
+        routes.mode = str(plan["mode"])
+        routes._sorted = lanes(plan["lanes"])
+        routes.lanes = frozenset(routes._sorted)
+        lines.remember_lengths(routes._sorted, plan["length"].tolist())
+        routes._follow = table(routes._sorted, plan["follow_at"], plan["follow"])
+        routes._lateral = table(routes._sorted, plan["lateral_at"], plan["lateral"])
+        routes._turnaround = dict(zip(lanes(plan["turnaround_from"]), lanes(plan["turnaround_to"])))
+        routes._towards = table(lanes(plan["towards_from"]), plan["towards_at"], plan["towards"])
+        return routes
+
     # ------------------------------------------------------------------ construction
     @staticmethod
     def _by_section(keep) -> dict[tuple[int, int], list[LaneKey]]:
@@ -173,11 +243,14 @@ class RandomRoutes:
         edges = forward + [(node[a], node[b]) for a in lanes for b in lateral[a]]
         source, target = (np.array(column, dtype=np.int64) for column in zip(*edges)) if edges else ((), ())
         _, label = strong_components(len(lanes), source, target)
-        progressing = sorted({int(label[a]) for a, b in forward if label[a] == label[b]})
-        members: dict[int, list[LaneKey]] = {i: [] for i in progressing}
-        for k, i in zip(lanes, label.tolist()):
-            if i in members:
-                members[i].append(k)
+        # components with a follow or turnaround edge inside (the first len(forward) edges), members in order
+        inside = label[source[:len(forward)]] == label[target[:len(forward)]] if forward else np.zeros(0, bool)
+        progressing = np.unique(label[source[:len(forward)][inside]]).tolist() if forward else []
+        member = np.isin(label, progressing)
+        order = np.flatnonzero(member)[np.argsort(label[member], kind="stable")]
+        bounds = np.searchsorted(label[order], progressing + [np.inf])
+        members = {i: [lanes[k] for k in order[lo:hi].tolist()]
+                   for i, lo, hi in zip(progressing, bounds[:-1].tolist(), bounds[1:].tolist())}
         best, best_rank = None, None
         for i in progressing:
             component = frozenset(members[i])

@@ -24,9 +24,12 @@ from twin.session.hooks import EgoPose, Frame, SessionHook
 log = logging.getLogger(__name__)
 
 
-def freeze_long_lived() -> None:
-    """Exempt every object alive now from the cyclic garbage collector's scans (``gc.freeze``)."""
-    gc.collect()
+def freeze_long_lived(collect: bool = True) -> None:
+    """Exempt every object alive now from the cyclic garbage collector's scans (``gc.freeze``), after a
+    collection unless ``collect`` is False (a map just loaded: millions of objects and hardly a cycle to free, the
+    walk over them would cost a region's start a second)."""
+    if collect:
+        gc.collect()
     gc.freeze()
 
 
@@ -52,12 +55,18 @@ class Session:
         self.odr = load_build_map(self.build.xodr)  # from the build's snapshot: a region's map in seconds
         # a region's map is millions of long-lived objects: the cyclic collector would walk them again and
         # again as the lane graph and routes allocate (seconds of a region's start); refcounting still frees
-        freeze_long_lived()
+        freeze_long_lived(collect=False)
         self.georeference, fallback = georeference_for_driving(self.odr)
         if fallback:
             log.warning("%s has no geoReference: lat/lon are placed as CARLA places such maps, local (0, 0) at "
                         "0 deg N 0 deg E", self.build.xodr.name)
-        self.graph = LaneGraph.from_opendrive(self.odr)
+        self.graph = None
+        if config.random or config.vehicles > 1:  # random routes: the lane graph a kept plan holds, if any
+            from twin.planning.route_cache import kept_lane_graph
+
+            self.graph = kept_lane_graph(self.odr, self.build.xodr, self.build.map_sha256)
+        if self.graph is None:
+            self.graph = LaneGraph.from_opendrive(self.odr)
         if len(self.graph) == 0:
             raise InputError("the map has no driving lanes", file=str(self.build.xodr))
         self.dt = float(config.dt)
@@ -118,7 +127,8 @@ class Session:
         if config.random or config.vehicles > 1:
             from twin.planning.random_routes import RandomRoutes
 
-            self.random_routes = RandomRoutes(self.graph, self.lines)
+            # read back from the plan of an earlier drive on this map and code, else computed and kept
+            self.random_routes = RandomRoutes.cached(self.graph, self.lines, self.build.xodr, self.build.map_sha256)
         if config.route is not None:
             from twin.planning.recorded import RecordedRoute
 
