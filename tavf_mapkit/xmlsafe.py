@@ -119,11 +119,12 @@ def safe_parser(**options) -> etree.XMLParser:
     )
 
 
-def iterparse_safe(source: XmlSource, events=("start", "end"), tag=None):
-    """lxml.iterparse over prepared bytes with the safe settings; errors become one-line InputErrors."""
+def iterparse_safe(source: XmlSource, events=("start", "end"), tag=None, stream_filter=None):
+    """lxml.iterparse over prepared bytes with the safe settings; errors become one-line InputErrors.
+    ``stream_filter``: called with the document's binary stream, gives the stream the parser reads instead."""
     with source.stream() as stream:
         context = etree.iterparse(
-            stream, events=events, tag=tag, resolve_entities=False, no_network=True, load_dtd=False,
+            stream if stream_filter is None else stream_filter(stream), events=events, tag=tag, resolve_entities=False, no_network=True, load_dtd=False,
             huge_tree=True, remove_comments=True, remove_pis=True,
         )
         try:

@@ -20,7 +20,15 @@ from tavf_mapkit.opendrive.junction import Connection, Controller, Junction, Jun
 from tavf_mapkit.opendrive.lane import Lane, LaneHeight, LaneRecord, RoadMark, RoadMarkLine
 from tavf_mapkit.opendrive.lanesection import LaneSection
 from tavf_mapkit.opendrive.network import OpenDriveMap
-from tavf_mapkit.opendrive.objects import ObjectRepeat, Outline, OutlineCorner, RoadObject, Signal, SignalReference
+from tavf_mapkit.opendrive.objects import (
+    ObjectRepeat,
+    Outline,
+    OutlineCorner,
+    RoadObject,
+    Signal,
+    SignalReference,
+)
+from tavf_mapkit.opendrive.planview_scan import PlanViewMismatch, PlanViewScan
 from tavf_mapkit.opendrive.refline import ReferenceLine, RowPacker
 from tavf_mapkit.opendrive.road import Road, RoadLink, RoadType, ShapeRecord
 from tavf_mapkit.opendrive.units import speed_to_mps
@@ -40,13 +48,20 @@ _SHARED_NUMBER_LENGTH = 6  # attribute values this short are shared even when th
 
 def load_opendrive(path: str | Path) -> OpenDriveMap:
     """Read an OpenDRIVE file; raises InputError (one line, with location) if it cannot be read."""
-    return _Reader(read_xml_source(path)).read()
+    return _read(read_xml_source(path))
 
 
 def loads_opendrive(data: bytes | str, name: str = "<string>") -> OpenDriveMap:
     if isinstance(data, str):
         data = data.encode("utf-8")
-    return _Reader(prepare_xml_bytes(data, name)).read()
+    return _read(prepare_xml_bytes(data, name))
+
+
+def _read(source: XmlSource) -> OpenDriveMap:
+    try:
+        return _Reader(source, scan_plan_views=True).read()
+    except PlanViewMismatch:  # a planView the scan emptied was not a road's (planview_scan.py): read it all
+        return _Reader(source).read()
 
 
 _PARAM_POLY3_NAMES = ("aU", "bU", "cU", "dU", "aV", "bV", "cV", "dV")
@@ -123,8 +138,10 @@ def _verbatim(element) -> bytes:
 
 
 class _Reader:
-    def __init__(self, source: XmlSource):
+    def __init__(self, source: XmlSource, scan_plan_views: bool = False):
         self.source = source
+        self.scan = None  # the PlanViewScan the parser reads through, if any
+        self.scan_plan_views = scan_plan_views
         self.warnings: list[Diagnostic] = []
         self.road_id: str | None = None
         self.strings: dict[str, str] = {}
@@ -245,8 +262,14 @@ class _Reader:
         handlers = {"header": None, "road": roads, "junction": junctions, "controller": controllers}
         root = None
         # only top-level elements are converted, then cleared: memory stays bounded on huge files
+        scan = None
+        if self.scan_plan_views:
+            def scan(stream):
+                self.scan = PlanViewScan(stream, self.source.line_offset)
+                return self.scan
         for _, element in iterparse_safe(self.source, events=("end",),
-                                         tag=("{*}header", "{*}road", "{*}junction", "{*}controller")):
+                                         tag=("{*}header", "{*}road", "{*}junction", "{*}controller"),
+                                         stream_filter=scan):
             parent = element.getparent()
             if parent is None or parent.getparent() is not None:
                 continue  # e.g. <controller> inside <junction>
@@ -270,6 +293,8 @@ class _Reader:
                     extras.append(_verbatim(previous))
                 del parent[0]
         self.packer.flush()
+        if self.scan is not None and self.scan.blocks:
+            raise PlanViewMismatch  # an emptied planView no road read
         root = root if root is not None else self.source.root
         if root is None:
             raise InputError("empty document, expected <OpenDRIVE>", file=self.source.name)
@@ -412,6 +437,11 @@ class _Reader:
                         self.shared_attrib(speed) if speed is not None else None)
 
     def plan_view(self, element) -> ReferenceLine:
+        if self.scan is not None and not len(element):
+            scanned = self.scan.take(element.sourceline, element.text)
+            if scanned is not None:  # read before the parser saw it (planview_scan.py)
+                narrow, lines = scanned
+                return self.reference_line(narrow, lines, [], [], {})
         # narrow rows, not Geometry objects: a map's curves as arcs are millions of records (see refline.py)
         # rows: the narrow rows' values one after another (one array made of them at the end); lines: one per row
         rows, lines, side_index, side_params, extra_xml = [], [], [], [], {}
@@ -493,7 +523,10 @@ class _Reader:
             line = self.line(g)
             lines.append(-1 if line is None else line)
         narrow = np.fromiter(rows, dtype=float, count=len(rows)).reshape(-1, NARROW_COLUMNS)
-        lines = np.array(lines, dtype=np.int32)
+        return self.reference_line(narrow, np.array(lines, dtype=np.int32), side_index, side_params, extra_xml)
+
+    @staticmethod
+    def reference_line(narrow, lines, side_index: list, side_params: list, extra_xml: dict) -> ReferenceLine:
         if len(narrow) > 1 and np.any(narrow[1:, 0] < narrow[:-1, 0]):
             # out of order in the file: sorted by s, stable like the records' own order (a rare, careful path)
             wide = join_rows(narrow, np.array(side_index, dtype=np.int64), np.array(side_params).reshape(-1, 9))

@@ -1,0 +1,231 @@
+"""The reader's fast path for plain planViews: read from the bytes before the XML parser sees them.
+
+A region's OpenDRIVE is mostly planView (region-32: 560,000 <geometry> of 900,000 elements; netconvert writes
+curves as runs of short arcs), and reading it element by element through lxml -- a Python object per element,
+per attribute list, per number -- was over half of the load. ``PlanViewScan`` wraps the stream the parser
+reads: each ``<planView>`` whose content is in the plain form of a line or an arc per geometry, exactly the
+attributes s, x, y, hdg, length (in this order, double quotes, every number finite, a positive length: what the
+reader's own hot path accepts, ``reader._Reader.plan_view``) is converted here, a chunk at a time with a few
+array operations, and handed on to the parser emptied (its newlines kept, so every line number after it stays
+the same). Anything else -- comments, other kinds, other attributes, entities, odd whitespace -- is left to the
+parser and the careful path, byte for byte.
+
+The reader pairs each emptied planView with the road it belongs to by its line (``take``); one it cannot pair
+(a planView in a comment, in userData, not a road's first) makes it read the file again without this scan.
+"""
+
+from __future__ import annotations
+
+import re
+from collections import deque
+
+import numpy as np
+
+from tavf_mapkit.opendrive.geometry import NARROW_COLUMNS, GeometryKind
+
+CHUNK_BYTES = 4 << 20  # read this much at a time: array operations over a few thousand planViews each
+_OPEN, _CLOSE = b"<planView>", b"</planView>"
+_LONGEST_HELD = 64 << 20
+_W = rb"(?:[ \t\n]|\r\n)*"  # XML white space; a lone CR would count lines differently than libxml2: refused
+# one code per text between two double quotes of a planView's content (the attribute values are between them)
+_TOKEN_KINDS = [
+    (b"S", rb"" + _W + rb"<geometry[ \t]+s="),  # the first geometry's start tag
+    (b"x", rb"[ \t]+x="), (b"y", rb"[ \t]+y="), (b"h", rb"[ \t]+hdg="), (b"l", rb"[ \t]+length="),
+    (b"a", rb"[ \t]*>" + _W + rb"<arc[ \t]+curvature="),  # an arc's shape
+    (b"n", rb"[ \t]*/>" + _W + rb"</geometry>" + _W + rb"<geometry[ \t]+s="),  # after an arc: the next geometry
+    (b"e", rb"[ \t]*/>" + _W + rb"</geometry>" + _W),  # after the last arc
+    (b"N", rb"[ \t]*>" + _W + rb"<line[ \t]*/>" + _W + rb"</geometry>" + _W + rb"<geometry[ \t]+s="),  # a line
+    (b"E", rb"[ \t]*>" + _W + rb"<line[ \t]*/>" + _W + rb"</geometry>" + _W),  # the last one a line
+]
+_TOKEN_PATTERNS = [(code, re.compile(pattern)) for code, pattern in _TOKEN_KINDS]
+_PLAIN_CONTENT = re.compile(rb"S(?:xyhl(?:an|N))*xyhl(?:ae|E)")  # the codes of a plain planView's content
+_SPACES = (b" ", b"\t", b"\n")
+_NUMBER_BYTES = b"0123456789.eE+-"  # all a plain value may hold; float() decides whether it is a number
+_OPENERS = np.frombuffer(b"SnN", dtype=np.uint8)  # tokens that end with a geometry's start tag
+_AFTER_LENGTH_CODES = b"aNE"  # the token after @length: an arc, or a line
+_AFTER_LENGTH = np.frombuffer(_AFTER_LENGTH_CODES, dtype=np.uint8)
+_ROLE = {ord("x"): 1, ord("y"): 2, ord("h"): 3, ord("l"): 4, ord("a"): 6}  # a value's column by the text before it
+_LINE, _ARC = float(GeometryKind.LINE), float(GeometryKind.ARC)
+
+
+class _TokenCodes(dict):
+    """token bytes -> (code, newlines in it, newlines before its first tag or -1 if no text is before it); a
+    file's tokens are a few distinct texts (its indentation)."""
+
+    def __missing__(self, token: bytes):
+        code = next((code for code, pattern in _TOKEN_PATTERNS if pattern.fullmatch(token)), b"?")
+        tag = token.find(b"<")
+        before_tag = token.count(b"\n", 0, tag) if tag > token.find(b">") + 1 else -1
+        found = self[token] = (code[0], token.count(b"\n"), before_tag)
+        return found
+
+
+# libxml2 keeps an element's line in 16 bits: from this line on, lxml's ``sourceline`` of an element is that of
+# its first child (xmlGetLineNo), for a text the line the text ends on. The lines given here are what the parser
+# would give for the same elements (the reader's careful path reads them from it).
+_BIG_LINE = 65535
+
+
+class PlanViewScan:
+    """A binary stream (``read``) of the document with its plain planViews emptied; ``blocks`` holds, in the
+    order of the file, (line of the <planView> tag in the stream, narrow rows, source lines) of each emptied one."""
+
+    def __init__(self, stream, line_offset: int = 0):
+        self.stream = stream
+        self.line_offset = line_offset
+        self.blocks: deque = deque()
+        self._held = b""  # read, not yet scanned: a planView that may continue in the next chunk
+        self._held_line = 1  # the line _held starts on
+        self._ready = b""
+        self._ready_at = 0
+        self._last_byte = b""  # the last byte handed on
+        self._ended = False
+        self._codes = _TokenCodes()
+
+    def read(self, size: int = -1) -> bytes:
+        while len(self._ready) - self._ready_at < max(size, 1) and not self._ended:
+            self._scan_more()
+        if size < 0:
+            size = len(self._ready) - self._ready_at
+        out = self._ready[self._ready_at:self._ready_at + size]
+        self._ready_at += len(out)
+        return out
+
+    def take(self, line: int, text: str | None):
+        """(narrow rows, source lines) of the emptied planView whose tag is on this line of the stream and whose
+        text is ``text``, or None when the next emptied one is further on; raises PlanViewMismatch if one was
+        passed by (not a road's planView) or this one is not it. Only planViews with a newline inside are
+        emptied, so two on one line cannot be taken for each other: their texts differ."""
+        blocks = self.blocks
+        if not blocks or blocks[0][0] > line:
+            return None
+        tag_line, rows, lines, newlines = blocks.popleft()
+        # an emptied planView's first child is its text, which ends newlines further on (see _BIG_LINE)
+        if (tag_line if tag_line < _BIG_LINE else tag_line + newlines) != line or text != "\n" * newlines:
+            raise PlanViewMismatch
+        return rows, lines
+
+    def _scan_more(self) -> None:
+        more = self.stream.read(CHUNK_BYTES)
+        data = self._held + more
+        if not more:
+            self._ended = True
+            self._emit(data, len(data), [])
+            return
+        spans, cut, position = [], len(data), 0
+        while True:
+            start = data.find(_OPEN, position)
+            if start < 0:
+                cut = max(position, len(data) - len(_OPEN) + 1)  # the start of a tag may be at the chunk's end
+                break
+            close = data.find(_CLOSE, start)
+            if close < 0:
+                # a planView that may end in the next chunk; one that never ends (a comment's, a broken file)
+                # is handed on as it is once it is this long, not searched again and again
+                cut = start if len(data) - start < _LONGEST_HELD else len(data)
+                break
+            spans.append((start, close))
+            position = close + len(_CLOSE)
+        self._emit(data, cut, spans)
+
+    def _emit(self, data: bytes, cut: int, spans: list) -> None:
+        """Hand on data[:cut] with the plain planViews among ``spans`` emptied; keep the rest for later."""
+        emptied = self._convert(data, spans)
+        pieces, position = [], 0
+        for start, close in emptied:
+            start += len(_OPEN)
+            pieces.append(data[position:start])
+            pieces.append(b"\n" * data.count(b"\n", start, close))
+            position = close
+        pieces.append(data[position:cut])
+        self._ready = self._ready[self._ready_at:] + b"".join(pieces)
+        self._ready_at = 0
+        self._held_line += data.count(b"\n", 0, cut)
+        if cut:
+            self._last_byte = data[cut - 1:cut]
+        self._held = data[cut:]
+
+    def _convert(self, data: bytes, spans: list) -> list:
+        """Queue the rows of the plain planViews among ``spans``; the spans of those queued."""
+        codes_of = self._codes
+        kept, token_codes, token_newlines, shape_newlines, values = [], [], [], [], []
+        for start, close in spans:
+            tokens = data[start + len(_OPEN):close].split(b'"')
+            texts = tokens[0::2]
+            numbers = tokens[1::2]
+            coded = list(map(codes_of.__getitem__, texts))
+            codes = bytes(code for code, _, _ in coded)
+            if (not _PLAIN_CONTENT.fullmatch(codes) or b"" in numbers
+                    or b"".join(numbers).translate(None, _NUMBER_BYTES)
+                    or (data[start - 1:start] if start else self._last_byte) not in _SPACES):
+                # (not after white space: it may be a first child, whose line would be its own child's: _BIG_LINE)
+                continue
+            kept.append((start, close, len(texts)))
+            token_codes.append(codes)
+            token_newlines.extend(count for _, count, _ in coded)
+            shape_newlines.extend(before for code, _, before in coded if code in _AFTER_LENGTH_CODES)
+            values.extend(numbers)
+        if not kept:
+            return []
+        try:
+            numbers = np.array(values).astype(np.float64)
+        except ValueError:  # e.g. "1e5e5": let the careful path name it, block by block
+            return self._convert_each(data, spans) if len(spans) > 1 else []
+        return self._queue(data, kept, b"".join(token_codes), token_newlines, shape_newlines, numbers)
+
+    def _convert_each(self, data: bytes, spans: list) -> list:
+        emptied = []
+        for span in spans:
+            emptied += self._convert(data, [span])
+        return emptied
+
+    def _queue(self, data: bytes, kept: list, codes: bytes, token_newlines: list, shape_newlines: list,
+               numbers: np.ndarray) -> list:
+        codes = np.frombuffer(codes, dtype=np.uint8)
+        token_counts = np.array([count for _, _, count in kept], dtype=np.int64)
+        block_of_token = np.repeat(np.arange(len(kept)), token_counts)
+        # a value follows each text but a planView's last: its column is the code of the text before it
+        last_token = np.cumsum(token_counts) - 1
+        value_codes = np.delete(codes, last_token)
+        columns = np.zeros(len(value_codes), dtype=np.int64)  # s after S, n or N
+        for code, column in _ROLE.items():
+            columns[value_codes == code] = column
+        opener = np.isin(codes, _OPENERS)
+        count = int(opener.sum())
+        rows = np.zeros((count, NARROW_COLUMNS))
+        geometry_of_value = np.cumsum(np.isin(value_codes, _OPENERS)) - 1
+        rows[geometry_of_value, columns] = numbers
+        is_arc = codes[np.isin(codes, _AFTER_LENGTH)] == ord("a")
+        rows[:, 5] = np.where(is_arc, _ARC, _LINE)
+        # source lines: the stream's line at each <planView>, then the newlines of the texts up to each geometry
+        newlines = np.cumsum(np.array(token_newlines, dtype=np.int64))
+        first_token = last_token - token_counts + 1
+        tag_lines = np.empty(len(kept), dtype=np.int64)
+        position, line = 0, self._held_line
+        for index, (start, _, _) in enumerate(kept):
+            line += data.count(b"\n", position, start)
+            tag_lines[index] = line
+            position = start
+        before_block = newlines[first_token] - np.array(token_newlines, dtype=np.int64)[first_token]
+        lines = (newlines + (tag_lines - before_block)[block_of_token])[opener]
+        shape_newlines = np.array(shape_newlines, dtype=np.int64)
+        big = lines >= _BIG_LINE  # the line of the geometry's first child: the text before its <arc> or <line>
+        lines = np.where(big, lines + shape_newlines, lines) + self.line_offset
+        geometry_counts = np.bincount(block_of_token[opener], minlength=len(kept))
+        # what the reader's hot path takes: every number finite and a positive length; others go to the parser
+        bad = ~np.isfinite(rows).all(axis=1) | ~(rows[:, 4] > 0.0) | (big & (shape_newlines < 0))
+        bad_blocks = np.bincount(block_of_token[opener][bad], minlength=len(kept)) if bad.any() else None
+        block_newlines = np.add.reduceat(np.array(token_newlines, dtype=np.int64), first_token).tolist()
+        emptied, first = [], 0
+        for index, ((start, close, _), geometries) in enumerate(zip(kept, geometry_counts.tolist())):
+            end = first + geometries
+            if (bad_blocks is None or not bad_blocks[index]) and block_newlines[index]:
+                self.blocks.append((int(tag_lines[index]), rows[first:end], lines[first:end].astype(np.int32),
+                                    block_newlines[index]))
+                emptied.append((start, close))
+            first = end
+        return emptied
+
+
+class PlanViewMismatch(Exception):
+    """An emptied planView the reader did not read as a road's planView: read the file again without the scan."""

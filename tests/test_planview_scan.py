@@ -1,0 +1,112 @@
+"""The reader's planView scan (opendrive/planview_scan.py) gives the map the careful, element-by-element path
+gives: same rows, same source lines (also past libxml2's 16-bit line numbers), same warnings and errors."""
+
+import pickle
+
+import pytest
+
+from tavf_mapkit.errors import InputError
+from tavf_mapkit.opendrive import planview_scan
+from tavf_mapkit.opendrive.reader import _Reader, loads_opendrive
+from tavf_mapkit.xmlsafe import prepare_xml_bytes
+
+ARC = '<geometry s="{s}" x="1.5" y="-2.25" hdg="0.125" length="{length}">\n  <arc curvature="0.01"/>\n</geometry>'
+LINE = '<geometry s="{s}" x="3e2" y="-.5" hdg="-1.5E-3" length="{length}">\n  <line/>\n</geometry>'
+LANES = '<lanes><laneSection s="0"><center><lane id="0" type="none"/></center></laneSection></lanes>'
+
+
+def road(road_id, plan_view: str, before: str = "\n  ") -> str:
+    return f'<road id="{road_id}" length="10" junction="-1">{before}<planView>\n{plan_view}\n</planView>{LANES}</road>\n'
+
+
+def document(*roads: str, padding: int = 0) -> bytes:
+    return ("<?xml version='1.0'?>\n<OpenDRIVE>\n<header revMajor='1' revMinor='6'/>\n" + "\n" * padding
+            + "".join(roads) + "</OpenDRIVE>\n").encode()
+
+
+def careful(data: bytes):
+    return _Reader(prepare_xml_bytes(data, "t.xodr")).read()
+
+
+def scanned_count(data: bytes, monkeypatch) -> int:
+    taken = []
+    original = planview_scan.PlanViewScan.take
+
+    def take(self, line, text):
+        found = original(self, line, text)
+        taken.append(found is not None)
+        return found
+    monkeypatch.setattr(planview_scan.PlanViewScan, "take", take)
+    loads_opendrive(data, "t.xodr")
+    return sum(taken)
+
+
+def same_map(data: bytes) -> None:
+    assert pickle.dumps(loads_opendrive(data, "t.xodr")) == pickle.dumps(careful(data))
+
+
+PLAIN = road(1, ARC.format(s=0, length=2) + "\n" + LINE.format(s=2, length=8))
+
+
+def test_plain_plan_views_are_scanned_and_give_the_same_map(monkeypatch):
+    data = document(PLAIN, road(2, LINE.format(s=0, length=10)))
+    same_map(data)
+    assert scanned_count(data, monkeypatch) == 2
+    odr = loads_opendrive(data, "t.xodr")
+    assert odr.roads[0].reference_line.lines.tolist() == [6, 9]  # the lines of the <geometry> tags
+
+
+def test_lines_past_65535_are_the_parsers(monkeypatch):
+    # libxml2 gives an element past line 65535 the line of its first child: the scan must give the same
+    data = document(PLAIN, road(2, ARC.format(s=0, length=10)), padding=70000)
+    same_map(data)
+    assert scanned_count(data, monkeypatch) == 2
+    assert loads_opendrive(data, "t.xodr").roads[0].reference_line.lines[0] > 65535
+
+
+@pytest.mark.parametrize("plan_view", [
+    ARC.format(s=0, length=-1),  # negative length: a warning, the record skipped
+    ARC.format(s=0, length=0),  # zero length: a warning
+    ARC.format(s=0, length="nan"),
+    ARC.format(s=0, length="1e5e5"),
+    ARC.format(s=0, length="1_0"),
+    ARC.format(s=0, length="&#49;0"),
+    ARC.format(s=5, length=1) + LINE.format(s=0, length=5),  # out of order: sorted
+    ARC.format(s=0, length=1).replace('"0.01"', "'0.01'"),
+    ARC.format(s=0, length=1).replace("<arc", "<!-- a comment --><arc"),
+    '<geometry s="0" x="0" y="0" hdg="0" length="4"><spiral curvStart="0" curvEnd="0.1"/></geometry>',
+    LINE.format(s=0, length=1).replace("<line/>", "<line/><userData code='x'/>"),
+])
+def test_other_plan_views_read_as_before(plan_view):
+    data = document(road(1, plan_view), PLAIN)
+    try:
+        expected = pickle.dumps(careful(data))
+    except InputError as error:
+        with pytest.raises(InputError) as raised:
+            loads_opendrive(data, "t.xodr")
+        assert str(raised.value) == str(error)
+        return
+    assert pickle.dumps(loads_opendrive(data, "t.xodr")) == expected
+
+
+@pytest.mark.parametrize("trap", [
+    "<!-- <planView>\n" + ARC.format(s=0, length=1) + "\n</planView> -->\n",  # in a comment
+    "<userData>\n  <planView>\n" + ARC.format(s=0, length=1) + "\n</planView></userData>\n",  # not a road's
+])
+def test_plan_views_that_are_no_roads_are_kept_as_written(trap, monkeypatch):
+    data = document(PLAIN, trap, road(2, LINE.format(s=0, length=10)))
+    same_map(data)
+
+
+def test_two_roads_on_one_line():
+    data = document(road(1, ARC.format(s=0, length=10)).rstrip("\n") + road(2, LINE.format(s=0, length=10)))
+    same_map(data)
+    one_line = document('<road id="1" length="1"> <planView/></road>' + road(2, LINE.format(s=0, length=10)))
+    same_map(one_line)
+
+
+def test_a_plan_view_across_the_scan_chunks(monkeypatch):
+    monkeypatch.setattr(planview_scan, "CHUNK_BYTES", 7)
+    data = document(*(road(k, ARC.format(s=0, length=1) + "\n" + LINE.format(s=1, length=9)) for k in range(30)))
+    same_map(data)
+    assert scanned_count(data, monkeypatch) == 30
