@@ -49,14 +49,20 @@ _LINE, _ARC = float(GeometryKind.LINE), float(GeometryKind.ARC)
 
 
 class _TokenCodes(dict):
-    """token bytes -> (code, newlines in it, newlines before its first tag or -1 if no text is before it); a
-    file's tokens are a few distinct texts (its indentation)."""
+    """token bytes -> its code; ``newlines`` and ``before_tag`` (-1: no text before it) of each token looked up
+    so far. A file's tokens are a few distinct texts (its indentation), looked up millions of times."""
 
-    def __missing__(self, token: bytes):
+    def __init__(self):
+        super().__init__()
+        self.newlines: dict[bytes, int] = {}
+        self.before_tag: dict[bytes, int] = {}
+
+    def __missing__(self, token: bytes) -> int:
         code = next((code for code, pattern in _TOKEN_PATTERNS if pattern.fullmatch(token)), b"?")
         tag = token.find(b"<")
-        before_tag = token.count(b"\n", 0, tag) if tag > token.find(b">") + 1 else -1
-        found = self[token] = (code[0], token.count(b"\n"), before_tag)
+        self.before_tag[token] = token.count(b"\n", 0, tag) if tag > token.find(b">") + 1 else -1
+        self.newlines[token] = token.count(b"\n")
+        found = self[token] = code[0]
         return found
 
 
@@ -92,18 +98,18 @@ class PlanViewScan:
         return out
 
     def take(self, line: int, text: str | None):
-        """(narrow rows, source lines) of the emptied planView whose tag is on this line of the stream and whose
+        """(narrow rows, source lines, whether sorted by s) of the emptied planView whose tag is on this line of the stream and whose
         text is ``text``, or None when the next emptied one is further on; raises PlanViewMismatch if one was
         passed by (not a road's planView) or this one is not it. Only planViews with a newline inside are
         emptied, so two on one line cannot be taken for each other: their texts differ."""
         blocks = self.blocks
         if not blocks or blocks[0][0] > line:
             return None
-        tag_line, rows, lines, newlines = blocks.popleft()
+        tag_line, rows, lines, newlines, in_order = blocks.popleft()
         # an emptied planView's first child is its text, which ends newlines further on (see _BIG_LINE)
         if (tag_line if tag_line < _BIG_LINE else tag_line + newlines) != line or text != "\n" * newlines:
             raise PlanViewMismatch
-        return rows, lines
+        return rows, lines, in_order
 
     def _scan_more(self) -> None:
         more = self.stream.read(CHUNK_BYTES)
@@ -147,14 +153,13 @@ class PlanViewScan:
 
     def _convert(self, data: bytes, spans: list) -> list:
         """Queue the rows of the plain planViews among ``spans``; the spans of those queued."""
-        codes_of = self._codes
-        kept, token_codes, token_newlines, shape_newlines, values = [], [], [], [], []
+        code_of = self._codes.__getitem__
+        kept, token_codes, texts_kept, values = [], [], [], []
         for start, close in spans:
             tokens = data[start + len(_OPEN):close].split(b'"')
             texts = tokens[0::2]
             numbers = tokens[1::2]
-            coded = list(map(codes_of.__getitem__, texts))
-            codes = bytes(code for code, _, _ in coded)
+            codes = bytes(map(code_of, texts))
             if (not _PLAIN_CONTENT.fullmatch(codes) or b"" in numbers
                     or b"".join(numbers).translate(None, _NUMBER_BYTES)
                     or (data[start - 1:start] if start else self._last_byte) not in _SPACES):
@@ -162,16 +167,17 @@ class PlanViewScan:
                 continue
             kept.append((start, close, len(texts)))
             token_codes.append(codes)
-            token_newlines.extend(count for _, count, _ in coded)
-            shape_newlines.extend(before for code, _, before in coded if code in _AFTER_LENGTH_CODES)
-            values.extend(numbers)
+            texts_kept += texts
+            values += numbers
         if not kept:
             return []
         try:
             numbers = np.array(values).astype(np.float64)
         except ValueError:  # e.g. "1e5e5": let the careful path name it, block by block
             return self._convert_each(data, spans) if len(spans) > 1 else []
-        return self._queue(data, kept, b"".join(token_codes), token_newlines, shape_newlines, numbers)
+        token_newlines = np.fromiter(map(self._codes.newlines.__getitem__, texts_kept), np.int64, len(texts_kept))
+        before_tag = np.fromiter(map(self._codes.before_tag.__getitem__, texts_kept), np.int64, len(texts_kept))
+        return self._queue(data, kept, b"".join(token_codes), token_newlines, before_tag, numbers)
 
     def _convert_each(self, data: bytes, spans: list) -> list:
         emptied = []
@@ -179,7 +185,7 @@ class PlanViewScan:
             emptied += self._convert(data, [span])
         return emptied
 
-    def _queue(self, data: bytes, kept: list, codes: bytes, token_newlines: list, shape_newlines: list,
+    def _queue(self, data: bytes, kept: list, codes: bytes, token_newlines: np.ndarray, before_tag: np.ndarray,
                numbers: np.ndarray) -> list:
         codes = np.frombuffer(codes, dtype=np.uint8)
         token_counts = np.array([count for _, _, count in kept], dtype=np.int64)
@@ -195,10 +201,12 @@ class PlanViewScan:
         rows = np.zeros((count, NARROW_COLUMNS))
         geometry_of_value = np.cumsum(np.isin(value_codes, _OPENERS)) - 1
         rows[geometry_of_value, columns] = numbers
-        is_arc = codes[np.isin(codes, _AFTER_LENGTH)] == ord("a")
+        after_length = np.isin(codes, _AFTER_LENGTH)
+        is_arc = codes[after_length] == ord("a")
+        shape_newlines = before_tag[after_length]
         rows[:, 5] = np.where(is_arc, _ARC, _LINE)
         # source lines: the stream's line at each <planView>, then the newlines of the texts up to each geometry
-        newlines = np.cumsum(np.array(token_newlines, dtype=np.int64))
+        newlines = np.cumsum(token_newlines)
         first_token = last_token - token_counts + 1
         tag_lines = np.empty(len(kept), dtype=np.int64)
         position, line = 0, self._held_line
@@ -206,22 +214,26 @@ class PlanViewScan:
             line += data.count(b"\n", position, start)
             tag_lines[index] = line
             position = start
-        before_block = newlines[first_token] - np.array(token_newlines, dtype=np.int64)[first_token]
+        before_block = newlines[first_token] - token_newlines[first_token]
         lines = (newlines + (tag_lines - before_block)[block_of_token])[opener]
-        shape_newlines = np.array(shape_newlines, dtype=np.int64)
         big = lines >= _BIG_LINE  # the line of the geometry's first child: the text before its <arc> or <line>
         lines = np.where(big, lines + shape_newlines, lines) + self.line_offset
         geometry_counts = np.bincount(block_of_token[opener], minlength=len(kept))
         # what the reader's hot path takes: every number finite and a positive length; others go to the parser
         bad = ~np.isfinite(rows).all(axis=1) | ~(rows[:, 4] > 0.0) | (big & (shape_newlines < 0))
         bad_blocks = np.bincount(block_of_token[opener][bad], minlength=len(kept)) if bad.any() else None
-        block_newlines = np.add.reduceat(np.array(token_newlines, dtype=np.int64), first_token).tolist()
+        block_newlines = np.add.reduceat(token_newlines, first_token).tolist()
+        block_of_geometry = block_of_token[opener]
+        backwards = np.flatnonzero((rows[1:, 0] < rows[:-1, 0]) & (block_of_geometry[1:] == block_of_geometry[:-1]))
+        in_order = np.ones(len(kept), dtype=bool)
+        in_order[block_of_geometry[backwards]] = False
+        in_order = in_order.tolist()
         emptied, first = [], 0
         for index, ((start, close, _), geometries) in enumerate(zip(kept, geometry_counts.tolist())):
             end = first + geometries
             if (bad_blocks is None or not bad_blocks[index]) and block_newlines[index]:
                 self.blocks.append((int(tag_lines[index]), rows[first:end], lines[first:end].astype(np.int32),
-                                    block_newlines[index]))
+                                    block_newlines[index], in_order[index]))
                 emptied.append((start, close))
             first = end
         return emptied

@@ -440,7 +440,9 @@ class _Reader:
         if self.scan is not None and not len(element):
             scanned = self.scan.take(element.sourceline, element.text)
             if scanned is not None:  # read before the parser saw it (planview_scan.py)
-                narrow, lines = scanned
+                narrow, lines, in_order = scanned
+                if in_order:
+                    return ReferenceLine.from_narrow(narrow, None, None, lines)
                 return self.reference_line(narrow, lines, [], [], {})
         # narrow rows, not Geometry objects: a map's curves as arcs are millions of records (see refline.py)
         # rows: the narrow rows' values one after another (one array made of them at the end); lines: one per row
