@@ -104,3 +104,22 @@ def test_a_drive_from_a_plan_is_the_computed_drive_and_builds_only_the_lines_it_
     built = set(session.lines._cache)
     assert session.lines._ends.index == {} and built  # lines built as the cars reached their lanes only
     assert built <= set(session.random_routes.lanes)
+
+
+def test_the_plans_code_digest_covers_route_planning_and_the_map_model_not_the_file_reader(monkeypatch):
+    import tavf_mapkit
+
+    root = __import__("pathlib").Path(tavf_mapkit.__file__).parent.parent
+    read = []
+    original = type(root).read_bytes
+    monkeypatch.setattr(type(root), "read_bytes", lambda self: read.append(self.relative_to(root).as_posix())
+                        or original(self))
+    route_cache.code_digest.cache_clear()
+    try:
+        route_cache.code_digest()
+    finally:
+        route_cache.code_digest.cache_clear()
+    for needed in ("twin/planning/drivable.py", "twin/map/lanelines.py", "tavf_mapkit/lanegraph/graph.py",
+                   "tavf_mapkit/opendrive/arrays.py", "tavf_mapkit/opendrive/lane.py", "tavf_mapkit/mesh/exact.py"):
+        assert needed in read
+    assert "tavf_mapkit/opendrive/reader.py" not in read and "tavf_mapkit/pipeline/stages.py" not in read

@@ -44,6 +44,11 @@ def cache_folder() -> Path | None:
 #: with its swept-path code) and tavf_mapkit's top-level modules. Not the export, pipeline, world or view code,
 #: which other work changes often and no plan depends on
 _PLAN_CODE = ("twin", "tavf_mapkit/opendrive", "tavf_mapkit/lanegraph", "tavf_mapkit/mesh", "tavf_mapkit/*.py")
+#: nor the OpenDRIVE file's reading and writing: the map a drive gets is that of the build's snapshot, whose
+#: validity does not depend on the reader either (``opendrive.snapshot.code_key``: the model's modules, which
+#: are part of the digest); a new reader comes with a new build
+_FILE_FORMAT = ("tavf_mapkit/opendrive/reader.py", "tavf_mapkit/opendrive/planview_scan.py",
+                "tavf_mapkit/opendrive/writer.py")
 
 
 @lru_cache(maxsize=1)
@@ -56,6 +61,7 @@ def code_digest() -> bytes:
     files = set()
     for part in _PLAN_CODE:
         files.update(root.glob(part) if part.endswith(".py") else (root / part).rglob("*.py"))
+    files.difference_update(root / part for part in _FILE_FORMAT)
     digest = hashlib.sha256(f"{sys.version_info[:3]} numpy {np.__version__} plan {PLAN_VERSION}".encode())
     for path in sorted(files):
         digest.update(str(path.relative_to(root)).encode() + b"\0" + path.read_bytes())
