@@ -23,7 +23,7 @@ import numpy as np
 
 from tavf_mapkit.opendrive.geometry import NARROW_COLUMNS, GeometryKind
 
-CHUNK_BYTES = 4 << 20  # read this much at a time: array operations over a few thousand planViews each
+CHUNK_BYTES = 1 << 20  # read this much at a time: array operations over hundreds of planViews each
 _OPEN, _CLOSE = b"<planView>", b"</planView>"
 _LONGEST_HELD = 64 << 20
 _W = rb"(?:[ \t\n]|\r\n)*"  # XML white space; a lone CR would count lines differently than libxml2: refused
@@ -40,7 +40,13 @@ _TOKEN_KINDS = [
 _TOKEN_PATTERNS = [(code, re.compile(pattern)) for code, pattern in _TOKEN_KINDS]
 _PLAIN_CONTENT = re.compile(rb"S(?:xyhl(?:an|N))*xyhl(?:ae|E)")  # the codes of a plain planView's content
 _SPACES = (b" ", b"\t", b"\n")
+_QUOTE = ord('"')
+_LONGEST_TEXT = 128  # bytes of a text between values (indentation and tags) the array path takes; longer: tokens
+_LONGEST_VALUE = 32  # bytes of a value the array path takes (a double's repr is at most 24)
+_HASH_FACTORS = np.random.default_rng(15).integers(1, 2**63, _LONGEST_TEXT // 8, dtype=np.uint64) | np.uint64(1)
+_NUMBER_CHARACTER = np.zeros(256, dtype=bool)  # what a value may hold
 _NUMBER_BYTES = b"0123456789.eE+-"  # all a plain value may hold; float() decides whether it is a number
+_NUMBER_CHARACTER[np.frombuffer(_NUMBER_BYTES, dtype=np.uint8)] = True
 _OPENERS = np.frombuffer(b"SnN", dtype=np.uint8)  # tokens that end with a geometry's start tag
 _AFTER_LENGTH_CODES = b"aNE"  # the token after @length: an arc, or a line
 _AFTER_LENGTH = np.frombuffer(_AFTER_LENGTH_CODES, dtype=np.uint8)
@@ -138,10 +144,10 @@ class PlanViewScan:
         """Hand on data[:cut] with the plain planViews among ``spans`` emptied; keep the rest for later."""
         emptied = self._convert(data, spans)
         pieces, position = [], 0
-        for start, close in emptied:
+        for start, close, newlines in emptied:
             start += len(_OPEN)
             pieces.append(data[position:start])
-            pieces.append(b"\n" * data.count(b"\n", start, close))
+            pieces.append(b"\n" * newlines)
             position = close
         pieces.append(data[position:cut])
         self._ready = self._ready[self._ready_at:] + b"".join(pieces)
@@ -153,6 +159,75 @@ class PlanViewScan:
 
     def _convert(self, data: bytes, spans: list) -> list:
         """Queue the rows of the plain planViews among ``spans``; the spans of those queued."""
+        if not spans:
+            return []
+        emptied = self._convert_arrays(data, spans)
+        return self._convert_tokens(data, spans) if emptied is None else emptied
+
+    def _convert_arrays(self, data: bytes, spans: list) -> list | None:
+        """``_convert`` without a Python object per token: the quotes, texts and values found with array
+        operations over the chunk's bytes, a text's code looked up once per distinct text. None where this
+        cannot decide (a long text, two texts of one hash, a value float() may not read): ``_convert_tokens``."""
+        buffer = np.frombuffer(data + bytes(_LONGEST_TEXT), dtype=np.uint8)  # zeros: every window is whole
+        windows = np.lib.stride_tricks.sliding_window_view(buffer, _LONGEST_TEXT)
+        span_array = np.array(spans, dtype=np.int64).reshape(-1, 2)
+        starts, closes = span_array[:, 0] + len(_OPEN), span_array[:, 1]
+        quotes = np.flatnonzero(buffer == _QUOTE)
+        first_quote, end_quote = np.searchsorted(quotes, starts), np.searchsorted(quotes, closes)
+        quote_counts = end_quote - first_quote
+        if np.any(quote_counts % 2) or not np.all(quote_counts):
+            return None  # an odd quote: not an attribute value as the plain form writes it
+        value_counts = quote_counts // 2
+        token_counts = value_counts + 1
+        quote_index = _ranges(first_quote, quote_counts)
+        opening, closing = quotes[quote_index[0::2]], quotes[quote_index[1::2]]
+        # texts: from a block's start or after a value's closing quote, to the next opening quote or the block's end
+        block_of_value = np.repeat(np.arange(len(spans)), value_counts)
+        first_value = np.cumsum(value_counts) - value_counts
+        text_starts = np.insert(closing + 1, first_value, starts)
+        text_ends = np.insert(opening, first_value + value_counts, closes)
+        text_lengths = text_ends - text_starts
+        value_starts, value_lengths = opening + 1, closing - opening - 1
+        text_width = -(-int(text_lengths.max()) // 8) * 8
+        value_width = int(value_lengths.max())
+        if text_width > _LONGEST_TEXT or value_width > _LONGEST_VALUE:
+            return None
+        texts = _padded(windows, text_starts, text_lengths, text_width).view(np.uint64)
+        # a hash of each text (wrapping arithmetic), then every text compared with the first of its hash
+        key = texts @ _HASH_FACTORS[:text_width // 8] + text_lengths.astype(np.uint64)
+        _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+        inverse = inverse.reshape(-1)
+        if not (np.array_equal(texts, texts[first][inverse]) and np.array_equal(text_lengths, text_lengths[first][inverse])):
+            return None
+        codes_of = self._codes
+        distinct_texts = [data[start:end] for start, end in zip(text_starts[first].tolist(), text_ends[first].tolist())]
+        codes = np.array([codes_of[text] for text in distinct_texts], dtype=np.uint8)[inverse]
+        newlines = np.array([codes_of.newlines[text] for text in distinct_texts], dtype=np.int64)[inverse]
+        before_tag = np.array([codes_of.before_tag[text] for text in distinct_texts], dtype=np.int64)[inverse]
+        values = _padded(windows, value_starts, value_lengths, value_width)
+        inside = np.arange(value_width) < value_lengths[:, None]
+        bad_value = (inside & ~_NUMBER_CHARACTER[values]).any(axis=1) | (value_lengths == 0)
+        bad_blocks = np.bincount(block_of_value[bad_value], minlength=len(spans)) if bad_value.any() else None
+        code_bytes, kept, keep_block = codes.tobytes(), [], np.zeros(len(spans), dtype=bool)
+        first_token = (np.cumsum(token_counts) - token_counts).tolist()
+        for index, ((start, close), token, count) in enumerate(zip(spans, first_token, token_counts.tolist())):
+            if ((bad_blocks is None or not bad_blocks[index])
+                    and _PLAIN_CONTENT.fullmatch(code_bytes, token, token + count)
+                    and (data[start - 1:start] if start else self._last_byte) in _SPACES):
+                kept.append((start, close, count))
+                keep_block[index] = True
+        if not kept:
+            return []
+        keep_token, keep_value = np.repeat(keep_block, token_counts), np.repeat(keep_block, value_counts)
+        try:
+            numbers = values[keep_value].view(f"S{value_width}").reshape(-1).astype(np.float64)
+        except ValueError:  # e.g. "1e5e5": the token path leaves it to the careful path, block by block
+            return None
+        return self._queue(data, kept, codes[keep_token].tobytes(), newlines[keep_token], before_tag[keep_token],
+                           numbers)
+
+    def _convert_tokens(self, data: bytes, spans: list) -> list:
+        """``_convert`` token by token (the texts and values as bytes objects)."""
         code_of = self._codes.__getitem__
         kept, token_codes, texts_kept, values = [], [], [], []
         for start, close in spans:
@@ -175,6 +250,8 @@ class PlanViewScan:
             numbers = np.array(values).astype(np.float64)
         except ValueError:  # e.g. "1e5e5": let the careful path name it, block by block
             return self._convert_each(data, spans) if len(spans) > 1 else []
+        if not texts_kept:
+            return []
         token_newlines = np.fromiter(map(self._codes.newlines.__getitem__, texts_kept), np.int64, len(texts_kept))
         before_tag = np.fromiter(map(self._codes.before_tag.__getitem__, texts_kept), np.int64, len(texts_kept))
         return self._queue(data, kept, b"".join(token_codes), token_newlines, before_tag, numbers)
@@ -182,7 +259,7 @@ class PlanViewScan:
     def _convert_each(self, data: bytes, spans: list) -> list:
         emptied = []
         for span in spans:
-            emptied += self._convert(data, [span])
+            emptied += self._convert_tokens(data, [span])
         return emptied
 
     def _queue(self, data: bytes, kept: list, codes: bytes, token_newlines: np.ndarray, before_tag: np.ndarray,
@@ -234,9 +311,24 @@ class PlanViewScan:
             if (bad_blocks is None or not bad_blocks[index]) and block_newlines[index]:
                 self.blocks.append((int(tag_lines[index]), rows[first:end], lines[first:end].astype(np.int32),
                                     block_newlines[index], in_order[index]))
-                emptied.append((start, close))
+                emptied.append((start, close, block_newlines[index]))
             first = end
         return emptied
+
+
+def _ranges(starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """The indices starts[0] .. starts[0] + counts[0] - 1, then those of the next range, ..., as one array."""
+    total = int(counts.sum())
+    offsets = np.cumsum(counts) - counts
+    return np.arange(total) - np.repeat(offsets - starts, counts)
+
+
+def _padded(windows: np.ndarray, starts: np.ndarray, lengths: np.ndarray, width: int) -> np.ndarray:
+    """(n, width) uint8: the bytes at start .. start + length - 1 of each, zeros after them; ``windows``: a
+    sliding window view of the bytes (at least ``width`` wide, zeros after the data)."""
+    rows = windows[starts, :width]
+    rows *= np.arange(width) < lengths[:, None]
+    return rows
 
 
 class PlanViewMismatch(Exception):
