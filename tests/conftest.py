@@ -37,6 +37,19 @@ def peer(getter):
         pytest.skip(str(error))
 
 
+@pytest.fixture(scope="session", autouse=True)
+def route_plan_cache(tmp_path_factory):
+    """Drives keep their route plans in $MAPKIT_CACHE (twin/planning/route_cache.py): the tests' in a folder of
+    their own, never the user's ~/.cache, so no test finds a plan an earlier run left (subprocesses inherit it)."""
+    previous = os.environ.get("MAPKIT_CACHE")
+    os.environ["MAPKIT_CACHE"] = str(tmp_path_factory.mktemp("mapkit-cache"))
+    yield
+    if previous is None:
+        os.environ.pop("MAPKIT_CACHE", None)
+    else:
+        os.environ["MAPKIT_CACHE"] = previous
+
+
 @pytest.fixture
 def shared():
     """``shared('xodr', 'esmini', 'e6mini.xodr')`` -> Path, skipping or failing as shared_path does."""

@@ -293,7 +293,9 @@ class LaneGraph:
     def centerline(self, key: LaneKey, step: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
         """(points (N, 3), road s (N,)) of the lane centre in driving direction, at most ``step`` apart."""
         road = self.odr.roads[key.road_index]
-        s = section_s_values(road.lane_sections[key.section_index].s0, road.section_end(key.section_index), step)
+        s0, s1 = road.lane_sections[key.section_index].s0, road.section_end(key.section_index)
+        self.odr.arrays.budget.check([key.road_index], [max(np.ceil((s1 - s0) / step), 1) + 1], "a lane centre line")
+        s = section_s_values(s0, s1, step)
         points = centre_points(self.odr, np.full(len(s), self.row(key)), s)
         if not self.drives_with_s(key):
             points, s = points[::-1], s[::-1]
@@ -309,6 +311,10 @@ class LaneGraph:
             road = self.odr.roads[key.road_index]
             bounds.append((road.lane_sections[key.section_index].s0, road.section_end(key.section_index)))
         s0, s1 = np.array(bounds, dtype=float).reshape(-1, 2).T
+        # asked before allocating: one absurd @length would be billions of points (the map's budget says
+        # which road, in one line)
+        self.odr.arrays.budget.check([k.road_index for k in keys], np.maximum(np.ceil((s1 - s0) / step), 1) + 1,
+                                     "lane centre lines")
         s, counts = sections_s_values(s0, s1, step)
         rows = np.repeat([self.row(k) for k in keys], counts)
         cuts = np.cumsum(counts)[:-1]
