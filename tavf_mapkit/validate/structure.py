@@ -216,7 +216,12 @@ def _attribute_problems_of_part(ctx, part: int, missing_hits: list, number_hits:
         elements = _xpath(path)(root)
         if not elements:
             continue
+        # each attribute read once per element (a region's part holds hundreds of thousands of geometries);
+        # only a path where one is missing or a number fails is walked again to find the culprits
+        values = {name: [element.get(name) for element in elements] for name in dict.fromkeys(required + numeric)}
         for i, name in enumerate(required):
+            if None not in values[name]:
+                continue
             for k, element in enumerate(elements):
                 if element.get(name) is not None:
                     continue
@@ -226,11 +231,13 @@ def _attribute_problems_of_part(ctx, part: int, missing_hits: list, number_hits:
                         f"<{element.tag}> lacks required " + ", ".join(f"@{m}" for m in missing),
                         road=_road_of(element), line=ctx.line(element))))
         for i, name in enumerate(numeric):
-            values = [value for value in (e.get(name) for e in elements) if value is not None]
-            if not values:
+            present = values[name]
+            if None in present:
+                present = [value for value in present if value is not None]
+            if not present:
                 continue
             try:
-                array = np.array(values, dtype=float)
+                array = np.array(present, dtype=float)
                 fine = bool(np.all(np.isfinite(array))) and (name not in nonnegative or bool(np.all(array >= 0)))
             except ValueError:
                 fine = False
@@ -242,6 +249,7 @@ def _attribute_problems_of_part(ctx, part: int, missing_hits: list, number_hits:
                 if problem:
                     number_hits.append(((p, i, part, k), Hit(f"<{element.tag}> @{name}={raw!r} {problem}",
                                                              road=_road_of(element), line=ctx.line(element))))
+        del values
     after = len(ELEMENTS)  # these come after every path's, as in one pass
     for k, element in enumerate(_xpath("junction/connection[not(@connectingRoad) and not(@linkedRoad)]")(root)):
         name = "linkedRoad" if element.getparent().get("type") == "direct" else "connectingRoad"

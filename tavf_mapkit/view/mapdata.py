@@ -81,7 +81,7 @@ def _map_items(odr, name, findings, repairs, match, attribution, step, batch: in
     }
 
 
-def _lane_and_mark_layers(odr, project: "_Projector", step: float, batch: int | None):
+def _lane_and_mark_layers(odr, project: _Projector, step: float, batch: int | None):
     """((lanes, count), (marks, count)): both layers from one sampling of the lanes, made a run of lane sections
     at a time (``sample_lane_chunks``: a part's samples are the whole map's, so are the features) and fed to
     one collection per layer, so only a chunk's samples and a batch's features per layer are held."""
@@ -100,7 +100,7 @@ class _Collector:
     """Features in, one layer out: a FeatureCollection dict (``batch`` None), or its JSON text made ``batch``
     features at a time (``_Projector.collection_json``), fed as the features come."""
 
-    def __init__(self, project: "_Projector", batch: int | None):
+    def __init__(self, project: _Projector, batch: int | None):
         self.project, self.batch = project, batch
         self.pending, self.parts, self.count = [], [], 0
 
@@ -159,9 +159,11 @@ class _Projector:
         self.georef = georef
 
     def lonlat(self, xy: np.ndarray) -> list:
+        return self.lonlat_array(xy).tolist()
+
+    def lonlat_array(self, xy: np.ndarray) -> np.ndarray:
         lon, lat = self.georef.local_to_wgs84(xy[:, 0], xy[:, 1])
-        return np.column_stack([np.round(np.atleast_1d(lon), DIGITS),
-                                np.round(np.atleast_1d(lat), DIGITS)]).tolist()
+        return np.column_stack([np.round(np.atleast_1d(lon), DIGITS), np.round(np.atleast_1d(lat), DIGITS)])
 
     def collection(self, features) -> dict:
         """opendrive.layers features -> a GeoJSON FeatureCollection: lines and rings thinned and every vertex
@@ -193,9 +195,11 @@ class _Projector:
             kept_owner = np.concatenate([kept_owner, thin_owner[keep], owner[back]])
         order = np.argsort(kept_owner, kind="stable")
         kept_xy, kept_owner = kept_xy[order], kept_owner[order]
-        vertices = np.split(np.array(self.lonlat(kept_xy)), np.cumsum(np.bincount(kept_owner,
-                                                                                  minlength=len(features)))[:-1])
-        out = [geojson_feature(feature, points.tolist()) for feature, points in zip(features, vertices)]
+        # one list of all vertices, sliced per feature: a feature's list is made by slicing, not by an array each
+        vertices = self.lonlat_array(kept_xy).tolist()
+        ends = np.cumsum(np.bincount(kept_owner, minlength=len(features))).tolist()
+        out = [geojson_feature(feature, vertices[start:end])
+               for feature, start, end in zip(features, [0, *ends[:-1]], ends)]
         return {"type": "FeatureCollection", "features": out}
 
     def collection_json(self, features, batch: int) -> tuple[_JSONText, int]:

@@ -16,6 +16,7 @@ tests/test_accuracy_regression.py.
 
 from __future__ import annotations
 
+import gc
 import json
 
 import numpy as np
@@ -55,6 +56,16 @@ class CheckStage(Stage):
         # validation reads the file once for both its document rules and its map rules, never holding both
         # (each is about a gigabyte for a large map); the map it loaded serves the checks below
         results["validate"], odr, findings = self._validate(context, xodr, files)
+        # the map lives to the end: its millions of objects are kept out of the collector's scans meanwhile
+        # (validate.runner.frozen_heap), or the page's allocations would walk them again and again (seconds each)
+        gc.freeze()
+        try:
+            return self._check_and_page(context, section, thresholds, xodr, files, results, odr, findings)
+        finally:
+            gc.unfreeze()
+
+    def _check_and_page(self, context, section, thresholds, xodr, files, results, odr, findings) -> StageOutput:
+        """The checks after validation, check.json and the page (``run`` after the map is loaded)."""
         results["georeference"] = _roundtrip(odr)
         reference = section.get("reference_network_path")
         if reference is not None:
