@@ -116,14 +116,22 @@ def lane_access(ctx, rule):
                                   road=road.id, lane=lane.id, s=record.s0, line=lane.line)
 
 
-def _width_at(road, k: int, lane, at_start: bool) -> float | None:
-    """The lane's width where its lane section starts or ends (None for a lane defined by borders)."""
-    if not len(lane.widths):
-        return None
-    start = road.lane_sections[k].s0
-    # at the end, a hair inside: a width record starting at the section's end is not yet in force
-    s = start if at_start else max(float(np.nextafter(road.section_end(k), -np.inf)), start)
-    return float(lane.widths(s))
+def _width_at(ctx, road, k: int, lane, at_start: bool) -> float | None:
+    """The lane's width where its lane section starts or ends (None for a lane defined by borders). Both ends of a
+    lane are evaluated in one call and kept for the map (two rules ask, and a lane of a junction's laneLinks is
+    asked for by each link to it): a region has hundreds of thousands of such questions."""
+    cache = ctx.notes.setdefault("_lane_end_widths", {})
+    key = (id(road), k, id(lane))  # a lane object could be shared by sections (interned), its ends are not
+    if key not in cache:
+        if not len(lane.widths):
+            cache[key] = None
+        else:
+            start = road.lane_sections[k].s0
+            # at the end, a hair inside: a width record starting at the section's end is not yet in force
+            end = max(float(np.nextafter(road.section_end(k), -np.inf)), start)
+            cache[key] = tuple(lane.widths(np.array([start, end])).tolist())
+    widths = cache[key]
+    return None if widths is None else widths[0 if at_start else 1]
 
 
 def _zero(width: float | None) -> bool:
@@ -142,7 +150,7 @@ def zero_width_link(ctx, rule):
         for k, section in enumerate(road.lane_sections):
             for lane in section.side_lanes:
                 for name, at_start in (("predecessor", True), ("successor", False)):
-                    if getattr(lane, name) is not None and _zero(_width_at(road, k, lane, at_start)):
+                    if getattr(lane, name) is not None and _zero(_width_at(ctx, road, k, lane, at_start)):
                         reported.add((road.id, k, lane.id, name))
                         s = section.s0 if at_start else road.section_end(k)
                         yield Hit(f"lane has zero width where its lane section {'starts' if at_start else 'ends'} "
@@ -151,7 +159,7 @@ def zero_width_link(ctx, rule):
         for road, lane, at_start in ((incoming, source, end == "start"), (connecting, target, contact == "start")):
             k = 0 if at_start else len(road.lane_sections) - 1
             name = "predecessor" if at_start else "successor"
-            if (road.id, k, lane.id, name) not in reported and _zero(_width_at(road, k, lane, at_start)):
+            if (road.id, k, lane.id, name) not in reported and _zero(_width_at(ctx, road, k, lane, at_start)):
                 reported.add((road.id, k, lane.id, name))
                 yield Hit(f"lane has zero width at the road's {'start' if at_start else 'end'} but a junction laneLink "
                           f"makes it a {name} ({incoming.id} lane {source.id} -> {connecting.id} lane {target.id})",
@@ -166,12 +174,12 @@ def zero_width_link(ctx, rule):
 def appearing_lane_link(ctx, rule):
     odr = ctx.odr
     for road, k, lane, name, other, j, target, at_start in _lane_links(odr):
-        if _zero(_width_at(other, j, target, at_start)):
+        if _zero(_width_at(ctx, other, j, target, at_start)):
             where = "the next lane section" if other is road else f"road {other.id}"
             yield Hit(f"{name} is lane {target.id} of {where}, which has zero width there (it appears beside the "
                       "lane that continues)", road=road.id, lane=lane.id, s=road.lane_sections[k].s0, line=lane.line)
     for incoming, source, end, connecting, target, contact in _junction_lane_links(odr):
         k = 0 if contact == "start" else len(connecting.lane_sections) - 1
-        if _zero(_width_at(connecting, k, target, contact == "start")):
+        if _zero(_width_at(ctx, connecting, k, target, contact == "start")):
             yield Hit(f"junction laneLink to lane {target.id} of connecting road {connecting.id}, which has zero width "
                       f"at its {contact}", road=incoming.id, lane=source.id, line=source.line)
