@@ -205,7 +205,7 @@ class PlanViewScan:
         newlines = np.array([codes_of.newlines[text] for text in distinct_texts], dtype=np.int64)[inverse]
         before_tag = np.array([codes_of.before_tag[text] for text in distinct_texts], dtype=np.int64)[inverse]
         values = _padded(windows, value_starts, value_lengths, value_width)
-        inside = np.arange(value_width) < value_lengths[:, None]
+        inside = np.arange(value_width, dtype=np.uint8) < value_lengths.astype(np.uint8)[:, None]
         bad_value = (inside & ~_NUMBER_CHARACTER[values]).any(axis=1) | (value_lengths == 0)
         bad_blocks = np.bincount(block_of_value[bad_value], minlength=len(spans)) if bad_value.any() else None
         code_bytes, kept, keep_block = codes.tobytes(), [], np.zeros(len(spans), dtype=bool)
@@ -327,7 +327,7 @@ def _padded(windows: np.ndarray, starts: np.ndarray, lengths: np.ndarray, width:
     """(n, width) uint8: the bytes at start .. start + length - 1 of each, zeros after them; ``windows``: a
     sliding window view of the bytes (at least ``width`` wide, zeros after the data)."""
     rows = windows[starts, :width]
-    rows *= np.arange(width) < lengths[:, None]
+    rows *= np.arange(width, dtype=np.uint8) < lengths.astype(np.uint8)[:, None]  # bytes, not int64: 2x faster
     return rows
 
 
