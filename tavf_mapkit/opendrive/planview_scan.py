@@ -2,7 +2,7 @@
 
 A region's OpenDRIVE is mostly planView (region-32: 560,000 <geometry> of 900,000 elements; netconvert writes
 curves as runs of short arcs), and reading it element by element through lxml -- a Python object per element,
-per attribute list, per number -- was over half of the load. ``PlanViewScan`` wraps the stream the parser
+per attribute list, per number -- was about half of the load. ``PlanViewScan`` wraps the stream the parser
 reads: each ``<planView>`` whose content is in the plain form of a line or an arc per geometry, exactly the
 attributes s, x, y, hdg, length (in this order, double quotes, every number finite, a positive length: what the
 reader's own hot path accepts, ``reader._Reader.plan_view``) is converted here, a chunk at a time with a few
