@@ -6,13 +6,13 @@ NaN, infinity and negative lengths are reported with file, line and road id.
 
 from __future__ import annotations
 
-import gc
 from pathlib import Path
 
 import numpy as np
 from lxml import etree
 
 from tavf_mapkit.errors import InputError
+from tavf_mapkit.memory import collector_paused
 from tavf_mapkit.opendrive.cubic import ProfileInterner
 from tavf_mapkit.opendrive.diagnostics import Diagnostic
 from tavf_mapkit.opendrive.geometry import NARROW_COLUMNS, GeometryKind, join_rows
@@ -59,17 +59,11 @@ def loads_opendrive(data: bytes | str, name: str = "<string>") -> OpenDriveMap:
 
 
 def _read(source: XmlSource) -> OpenDriveMap:
-    # the reader makes millions of objects and next to no cycles: the collector's walks over the growing map
-    # were ~6% of a region's load (region-32: 565 collections, 289 objects freed)
-    collecting = gc.isenabled()
-    gc.disable()
-    try:
-        return _Reader(source, scan_plan_views=True).read()
-    except PlanViewMismatch:  # a planView the scan emptied was not a road's (planview_scan.py): read it all
-        return _Reader(source).read()
-    finally:
-        if collecting:
-            gc.enable()
+    with collector_paused():
+        try:
+            return _Reader(source, scan_plan_views=True).read()
+        except PlanViewMismatch:  # a planView the scan emptied was not a road's (planview_scan.py): read it all
+            return _Reader(source).read()
 
 
 _PARAM_POLY3_NAMES = ("aU", "bU", "cU", "dU", "aV", "bV", "cV", "dV")

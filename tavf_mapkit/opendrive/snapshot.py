@@ -15,7 +15,6 @@ constructors (never ``getattr``, modules or functions at large): a snapshot from
 
 from __future__ import annotations
 
-import gc
 import hashlib
 import logging
 import pickle
@@ -27,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tavf_mapkit.memory import collector_paused
 from tavf_mapkit.opendrive.network import OpenDriveMap
 
 log = logging.getLogger(__name__)
@@ -175,14 +175,8 @@ def load_snapshot(path: str | Path, xodr: str | Path) -> OpenDriveMap | None:
                 log.info("%s is not a snapshot of %s as it is now (or made by other code): reading the file",
                          path.name, Path(xodr).name)
                 return None
-            # millions of new objects, none of them garbage: the cyclic collector would walk them again and again
-            collecting = gc.isenabled()
-            gc.disable()
-            try:
+            with collector_paused():  # millions of new objects, none of them garbage
                 odr = _ModelUnpickler(handle).load()
-            finally:
-                if collecting:
-                    gc.enable()
     except FileNotFoundError:
         return None
     except (OSError, pickle.UnpicklingError, EOFError, AttributeError, TypeError, ValueError, IndexError) as error:

@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-import gc
-from contextlib import contextmanager
 from pathlib import Path
 
 from tavf_mapkit.errors import InputError, MapkitError
-from tavf_mapkit.memory import return_freed_memory
+from tavf_mapkit.memory import frozen_heap, return_freed_memory
 from tavf_mapkit.validate.context import ValidationContext
 from tavf_mapkit.validate.document import document_parts
 from tavf_mapkit.validate.finding import ERROR, WARNING, Finding
@@ -79,18 +77,6 @@ def validate_and_load(path: str | Path, rules=None, strict: bool = False, schema
                 if available[rule.id]:
                     found[rule.id] = _check(context, rule, strict)
     return _report(context, rules, found, available, strict, version), context.odr, error
-
-
-@contextmanager
-def frozen_heap():
-    """Exempt every object alive now (a loaded map: millions of them) from the garbage collector's scans while the
-    block runs (``gc.freeze``), given back after it. A region's rules and page allocate much; each full collection
-    would walk the whole map again (seconds each on a region), though none of it can be garbage meanwhile."""
-    gc.freeze()
-    try:
-        yield
-    finally:
-        gc.unfreeze()
 
 
 def validate_map(odr, rules=None, strict: bool = False) -> ValidationReport:

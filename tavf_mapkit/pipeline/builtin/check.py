@@ -16,12 +16,12 @@ tests/test_accuracy_regression.py.
 
 from __future__ import annotations
 
-import gc
 import json
 
 import numpy as np
 
 from tavf_mapkit.errors import InputError, StageError
+from tavf_mapkit.memory import frozen_heap
 from tavf_mapkit.pipeline.context import BuildContext
 from tavf_mapkit.pipeline.stages import Stage, StageOutput, register_stage
 
@@ -56,13 +56,10 @@ class CheckStage(Stage):
         # validation reads the file once for both its document rules and its map rules, never holding both
         # (each is about a gigabyte for a large map); the map it loaded serves the checks below
         results["validate"], odr, findings = self._validate(context, xodr, files)
-        # the map lives to the end: its millions of objects are kept out of the collector's scans meanwhile
-        # (validate.runner.frozen_heap), or the page's allocations would walk them again and again (seconds each)
-        gc.freeze()
-        try:
+        # the map lives to the end: its millions of objects are kept out of the collector's scans meanwhile, or
+        # the page's allocations would walk them again and again (seconds each)
+        with frozen_heap():
             return self._check_and_page(context, section, thresholds, xodr, files, results, odr, findings)
-        finally:
-            gc.unfreeze()
 
     def _check_and_page(self, context, section, thresholds, xodr, files, results, odr, findings) -> StageOutput:
         """The checks after validation, check.json and the page (``run`` after the map is loaded)."""
