@@ -337,3 +337,35 @@ def test_s_values_of_many_sections_at_once_are_each_sections_own():
         assert counts.sum() == len(values)
         for a, b, part in zip(s0.tolist(), (s0 + length).tolist(), np.split(values, np.cumsum(counts)[:-1])):
             assert part.tobytes() == section_s_values(a, b, step).tobytes(), (a, b, step)
+
+
+def test_centre_lines_by_section_are_each_lanes_own_to_the_bit(sample_build_dir):
+    """``section_centre_lines`` evaluates the reference line once per section and each border once (a lane's
+    inner border is its neighbour's outer one); every lane's points are still ``centre_points`` of that lane
+    alone at its section's s, to the bit: all lane types (sidewalks outside driving lanes, several lanes a
+    side), rows asked in any order and without their inner neighbours."""
+    from tavf_mapkit.lanegraph.geometry import centre_points, section_centre_lines, sections_s_values
+    from twin.sim.build import Build
+
+    wide = _road("1", 0, 0, 0.3, 40, _section(0, left=[_lane(1, 3.0), _lane(2, 2.5, lane_type="sidewalk")],
+                                              right=[_lane(-1, 3.2), _lane(-2, 3.0), _lane(-3, 2.0, lane_type="sidewalk")])
+                 + _section(25.5, right=[_lane(-1, 3.1), _lane(-2, 2.9)]))
+    header = '<header revMajor="1" revMinor="6"/>'
+    for odr in (loads_opendrive(f'<OpenDRIVE>{header}{wide}</OpenDRIVE>'),
+                load_opendrive(Build.open(sample_build_dir).xodr)):
+        arrays = odr.arrays
+        assert arrays.lane_rank.max() >= 1  # lanes whose inner border is another lane's outer one
+        every = np.arange(len(arrays.lane_id))
+        some = np.random.default_rng(3).permutation(every)
+        some = some[arrays.lane_rank[some] > 0][:40]  # outer lanes alone: their inner neighbours are not asked
+        for rows in (every, some):
+            points, s, counts = section_centre_lines(odr, rows, 1.0)
+            section = arrays.lane_section[rows]
+            want_s, want_counts = sections_s_values(arrays.section_s0[section], arrays.section_end[section], 1.0)
+            assert np.array_equal(counts, want_counts) and np.array_equal(s, want_s)
+            assert np.array_equal(points, centre_points(odr, np.repeat(rows, counts), s))
+    graph = LaneGraph.from_opendrive(odr)
+    keys = graph.keys[::-1]
+    flat, _, counts = graph.centerline_arrays(keys)
+    for key, points in zip(keys, np.split(flat, np.cumsum(counts)[:-1])):
+        assert np.array_equal(points, graph.centerline(key)[0]), key  # reversed where the lane drives against s

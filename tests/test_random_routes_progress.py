@@ -484,8 +484,8 @@ def test_curvature_over_several_windows_is_each_windows_and_each_lines_own(berli
     from twin.planning.drivable import WINDOWS
 
     graph = LaneGraph.from_opendrive(load_opendrive(Build.open(berlin_build).xodr))
-    lines = [line for batch in LaneLines(graph).scan(sorted(graph.keys)) for line in batch if len(line.points) > 1]
-    points = [line.points[:, :2] for line in lines]
+    batches = LaneLines(graph).scan(sorted(graph.keys))
+    points = [batch.points[lo:hi, :2] for batch in batches for lo, hi in zip(batch.at[:-1], batch.at[1:]) if hi - lo > 1]
     points[3] = np.repeat(points[3], 2, axis=0)  # repeated points take their predecessor's curvature
     lane = np.repeat(np.arange(len(points)), [len(p) for p in points])
     together = wheelbase_curvatures(lane, np.concatenate(points), WINDOWS)

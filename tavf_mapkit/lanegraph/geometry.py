@@ -142,6 +142,46 @@ def centre_points(odr, lane_rows: np.ndarray, s: np.ndarray) -> np.ndarray:
     return surface_points(x, y, z, heading, slope, roll, 0.5 * (t_inner + t_outer), None)
 
 
+def section_centre_lines(odr, rows: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Centre lines of lane-table rows ``rows`` in s direction, each sampled at its section's
+    ``sections_s_values``: (points (n, 3) without lane height, s (n,), points per row), row after row in the
+    order given. ``centre_points`` of every row at those s, to the bit, but the reference line and its surface
+    frame are evaluated once per section sample, not once per lane (the lanes of a section share their s), and
+    every border once (a lane's inner border is its inner neighbour's outer one, ``border_offsets``' pairs)."""
+    from tavf_mapkit.opendrive.surface import surface_frame
+
+    arrays = odr.arrays
+    rows = np.asarray(rows, dtype=np.int64)
+    if not len(rows):
+        return np.zeros((0, 3)), np.zeros(0), np.zeros(0, dtype=np.int64)
+    rank = arrays.lane_rank[rows]
+    # the rows asked for and their inner neighbours (the rows of a side run outwards: the inner one is row - 1)
+    needed = np.unique(np.concatenate([rows[rank >= r] - r for r in range(int(rank.max()) + 1)]))
+    sections, position = np.unique(arrays.lane_section[needed], return_inverse=True)
+    s, counts = sections_s_values(arrays.section_s0[sections], arrays.section_end[sections], step)
+    section_first = np.cumsum(counts) - counts
+    x, y, z, heading, slope, roll, _ = arrays.reference(np.repeat(arrays.section_road[sections], counts), s)
+    e_t, _ = surface_frame(heading, slope, roll)
+    base = np.column_stack([x, y, z])
+    # (lane, sample) pairs of the needed rows, lane by lane
+    lane_counts = counts[position]
+    lane_first = np.cumsum(lane_counts) - lane_counts
+    within = np.arange(int(lane_counts.sum())) - np.repeat(lane_first, lane_counts)
+    pair_sample = np.repeat(section_first[position], lane_counts) + within
+    inner = np.searchsorted(needed, needed - 1)  # the inner neighbour's place (used for rank > 0 only)
+    inner_pair = np.repeat(lane_first[np.minimum(inner, len(needed) - 1)], lane_counts) + within
+    pair_lane = np.repeat(needed, lane_counts)
+    t_inner, t_outer = border_offsets(arrays, pair_lane, s[pair_sample], inner_pair)
+    # the pairs of the rows asked for, in their order
+    place = np.searchsorted(needed, rows)
+    wanted_counts = lane_counts[place]
+    wanted_first = np.cumsum(wanted_counts) - wanted_counts
+    pairs = np.repeat(lane_first[place] - wanted_first, wanted_counts) + np.arange(int(wanted_counts.sum()))
+    sample = pair_sample[pairs]
+    t = 0.5 * (t_inner[pairs] + t_outer[pairs])
+    return base[sample] + t[:, None] * e_t[sample], s[sample], wanted_counts
+
+
 def section_s_values(s0: float, s1: float, step: float) -> np.ndarray:
     """Evenly spaced s from s0 to s1 inclusive, no further apart than step (at least the two ends)."""
     if s1 - s0 <= 0:

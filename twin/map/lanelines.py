@@ -192,6 +192,26 @@ class EndsArrays(NamedTuple):
     tail_along: np.ndarray
 
 
+class LineBatch(NamedTuple):
+    """Lane lines of many lanes as flat arrays (``LaneLines.scan``): lane ``i`` (``keys[i]``) is
+    ``points[at[i]:at[i + 1]]`` with arc lengths ``along[at[i]:at[i + 1]]``, the numbers of its ``LaneLine``.
+    A region's lanes are tens of thousands: no object and no arrays per lane."""
+
+    keys: list
+    at: np.ndarray  # (n + 1,)
+    points: np.ndarray  # (m, 3)
+    along: np.ndarray  # (m,)
+
+    @property
+    def length(self) -> np.ndarray:
+        """Per lane its length (its last arc length; ``LaneLine.length``)."""
+        return self.along[self.at[1:] - 1]
+
+    @property
+    def counts(self) -> np.ndarray:
+        return np.diff(self.at)
+
+
 class _EndsTable:
     """``LaneEnds`` of many lanes in a few flat arrays (a region has 161,781 lanes: an object and four arrays
     per lane would cost more than the points)."""
@@ -201,26 +221,27 @@ class _EndsTable:
         self._parts: list[tuple] = []
         self._arrays = None
 
-    def add(self, lines: list[LaneLine]) -> None:
-        if not lines:
+    def add(self, batch: LineBatch, lanes: np.ndarray) -> None:
+        """Keep the ends of the lanes ``lanes`` (positions in ``batch``, ascending)."""
+        if not len(lanes):
             return
-        counts = np.array([len(line.along) for line in lines])
-        points = np.concatenate([line.points[:, :2] for line in lines])
-        along = np.concatenate([line.along for line in lines])
-        lane = np.repeat(np.arange(len(lines)), counts)
+        counts = batch.counts[lanes]
+        lane = np.repeat(np.arange(len(lanes)), counts)
         first = np.cumsum(counts) - counts
+        taken = np.repeat(batch.at[lanes] - first, counts) + np.arange(len(lane))  # the lanes' points
+        points, along = batch.points[taken, :2], batch.along[taken]
         position = np.arange(len(along)) - first[lane]
-        length = np.array([line.length for line in lines])
+        length = batch.length[lanes]
         head = (along <= ENDS_HEAD) | (position < 2)
         # the tail: points beyond length - ENDS_TAIL, the last point at or before it, and the last two points
         limit = length[lane] - ENDS_TAIL
         beyond = along > limit
         next_beyond = np.r_[beyond[1:], False] & np.r_[lane[1:] == lane[:-1], False]
         tail = beyond | next_beyond | (position >= counts[lane] - 2)
-        for key in (line.key for line in lines):
-            self.index[key] = len(self.index)
-        self._parts.append((length, np.bincount(lane[head], minlength=len(lines)), points[head], along[head],
-                            np.bincount(lane[tail], minlength=len(lines)), points[tail], along[tail]))
+        for i in lanes.tolist():
+            self.index[batch.keys[i]] = len(self.index)
+        self._parts.append((length, np.bincount(lane[head], minlength=len(lanes)), points[head], along[head],
+                            np.bincount(lane[tail], minlength=len(lanes)), points[tail], along[tail]))
         self._arrays = None
 
     def __contains__(self, key: LaneKey) -> bool:
@@ -270,15 +291,16 @@ class LaneLines:
         self._known_lengths: dict[LaneKey, float] = {}  # lengths known without the lines (``remember_lengths``)
 
     def scan(self, keys):
-        """The lines of ``keys`` (lists of ``LaneLine``, in order), batch by batch, not kept: a region's lines
+        """The lines of ``keys`` (``LineBatch``es, lanes in order), batch by batch, not kept: a region's lines
         do not fit beside its map (Columbus: 161,781 lanes). Only their ends stay (``ends``); a line asked for
         later is built again, the same to the bit."""
         for batch in lane_batches(self.graph, list(dict.fromkeys(keys)), self.step):
-            missing = [k for k in batch if k not in self._cache]
-            built = dict(zip(missing, self._build(missing)))
-            found = [self._cache[k] if k in self._cache else built[k] for k in batch]
-            self._ends.add([built[k] for k in missing if k not in self._ends])  # kept lines are their own ends
-            yield found
+            lines = self._evaluate(batch)
+            # kept lines are their own ends
+            new = np.fromiter((k not in self._cache and k not in self._ends for k in batch), dtype=bool,
+                              count=len(batch))
+            self._ends.add(lines, np.flatnonzero(new))
+            yield lines
 
     def line(self, key: LaneKey) -> LaneLine:
         """The lane's line, not kept when it was not (a line asked for once, in the middle of a scan)."""
@@ -332,26 +354,35 @@ class LaneLines:
     def _build(self, missing: list[LaneKey]) -> list[LaneLine]:
         if not missing:
             return []
-        found = self.graph.centerlines(missing, self.step)
-        lines = [found[k][0] for k in missing]
-        counts = np.array([len(p) for p in lines])
-        points = np.concatenate(lines)
-        lane = np.repeat(np.arange(len(missing)), counts)
-        suspect = np.flatnonzero(_may_loop_or_fold(lane, points, len(missing))).tolist()
-        for i, line in zip(suspect, lines_without_loops([lines[i] for i in suspect])):
-            lines[i] = without_folds(line)
+        lines = self._evaluate(missing)
+        at = lines.at.tolist()
+        # a line of its own, always a copy: a view (a lane driven with s) would keep the whole batch's points
+        # alive, the copies of the reversed lanes beside them (Columbus: ~90 MB of lines held twice)
+        return [LaneLine(key, lines.points[lo:hi].copy(), lines.along[lo:hi].copy(), self.graph.speed_limit(key))
+                for key, lo, hi in zip(missing, at[:-1], at[1:])]
+
+    def _evaluate(self, keys: list[LaneKey]) -> LineBatch:
+        """The lines of ``keys`` (one evaluation of the map for all of them)."""
+        if not keys:
+            return LineBatch([], np.zeros(1, dtype=np.int64), np.zeros((0, 3)), np.zeros(0))
+        points, _, counts = self.graph.centerline_arrays(keys, self.step)
+        lane = np.repeat(np.arange(len(keys)), counts)
+        suspect = np.flatnonzero(_may_loop_or_fold(lane, points, len(keys))).tolist()
         if suspect:  # (not np.any: a list [0], the first line alone, is a suspect too)
-            counts = np.array([len(p) for p in lines])
-            points = np.concatenate(lines)
-            lane = np.repeat(np.arange(len(missing)), counts)
+            at = np.r_[0, np.cumsum(counts)].tolist()
+            fixed = [without_folds(line) for line in lines_without_loops([points[at[i]:at[i + 1]] for i in suspect])]
+            pieces, done = [], 0
+            for i, line in zip(suspect, fixed):  # the lines between suspects as they are, each suspect fixed
+                pieces += [points[at[done]:at[i]], line]
+                done = i + 1
+            points = np.concatenate(pieces + [points[at[done]:]])
+            counts = counts.copy()
+            counts[suspect] = [len(line) for line in fixed]
+            lane = np.repeat(np.arange(len(keys)), counts)
         # arc length per line: each line's own sequential sum, as a cumsum of that line alone would give
         step = np.linalg.norm(np.diff(points[:, :2], axis=0), axis=1)
         along = run_cumsum(np.r_[0.0, np.where(lane[1:] == lane[:-1], step, 0.0)], lane)
-        along = np.split(along, np.cumsum(counts)[:-1])
-        # a line of its own, always a copy: a view (a lane driven with s) would keep the whole batch's points
-        # alive, the copies of the reversed lanes beside them (Columbus: ~90 MB of lines held twice)
-        return [LaneLine(key, np.array(line), distance, self.graph.speed_limit(key))
-                for key, line, distance in zip(missing, lines, along)]
+        return LineBatch(list(keys), np.r_[0, np.cumsum(counts)], points, along)
 
 
 def lane_batches(graph: LaneGraph, keys: list[LaneKey], step: float):

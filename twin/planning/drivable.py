@@ -134,25 +134,31 @@ def undrivable_lanes(graph: LaneGraph, lines: LaneLines, radius: float | None = 
     "cuts a bend by X m"). Every lane's line is measured once, batch by batch (``LaneLines.scan``): a
     region's lines are not kept, only their ends, which is all the steps between lanes are measured on."""
     radius = min_turn_radius() if radius is None else radius
-    measured, cut, turn, heading = [], [], [], {}
+    measured, cut, turn, first_heading, last_heading = [], [], [], [], []
     # every lane is measured on its own, so batches give the same numbers
     for batch in lines.scan(sorted(graph.keys)):
-        batch = [line for line in batch if line.length >= DEGENERATE_LANE and len(line.points) >= 2]
-        if not batch:
+        counts = batch.counts
+        chosen = np.flatnonzero((batch.length >= DEGENERATE_LANE) & (counts >= 2))
+        if not len(chosen):
             continue
-        measured.extend(line.key for line in batch)
-        points = [line.points[:, :2] for line in batch]
-        heading.update((line.key, _end_headings(p[:2], p[-2:])) for line, p in zip(batch, points))
-        lane = np.repeat(np.arange(len(batch)), [len(p) for p in points])
-        points = np.concatenate(points)
+        measured.extend(batch.keys[i] for i in chosen.tolist())
+        counts = counts[chosen]
+        lane = np.repeat(np.arange(len(chosen)), counts)
+        first = np.cumsum(counts) - counts
+        points = batch.points[np.repeat(batch.at[chosen] - first, counts) + np.arange(len(lane)), :2]
+        # each lane's first and last segment (``_end_headings``)
+        start, stop = points[first + 1] - points[first], points[first + counts - 1] - points[first + counts - 2]
+        first_heading.append(np.arctan2(start[:, 1], start[:, 0]))
+        last_heading.append(np.arctan2(stop[:, 1], stop[:, 0]))
         cut.append(worst_cuts(lane, points, radius, max_cut))
         d = np.diff(points, axis=0)
         inside = (lane[1:-1] == lane[:-2]) & (lane[2:] == lane[1:-1])  # consecutive segments of one lane
         turn.append(np.bincount(lane[1:-1][inside], weights=_wrap(np.diff(np.arctan2(d[:, 1], d[:, 0])))[inside],
-                                minlength=len(batch)))
+                                minlength=len(chosen)))
     if not measured:
         return {}
     cut, turn = np.concatenate(cut), np.concatenate(turn)
+    heading = dict(zip(measured, zip(np.concatenate(first_heading).tolist(), np.concatenate(last_heading).tolist())))
     found = {}
     for k, worst, own in zip(measured, cut, turn):
         u_turn = abs(own) > U_TURN
