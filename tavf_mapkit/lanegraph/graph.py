@@ -9,6 +9,7 @@ arrays (``lanegraph.edges``), routing gives exactly the routes networkx gave on 
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Iterable
 from functools import cached_property
 
@@ -178,6 +179,12 @@ class LaneGraph:
     def keys(self) -> list[LaneKey]:
         """The lanes in node order (the map's row order)."""
         return list(self._keys)
+
+    @cached_property
+    def key_array(self) -> np.ndarray:
+        """The keys in node order as an (n, 3) int64 array (road index, section index, lane id)."""
+        flat = np.fromiter(itertools.chain.from_iterable(self._keys), dtype=np.int64, count=3 * len(self._keys))
+        return flat.reshape(-1, 3)
 
     def node(self, key: LaneKey) -> int:
         """The lane's node number (its position in ``keys``, the rows of ``edges``)."""

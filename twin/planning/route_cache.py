@@ -90,7 +90,7 @@ def plan_path(xodr: Path, map_sha256: str, max_cut: float, lane_change_probabili
 def graph_arrays(graph) -> dict[str, np.ndarray]:
     """The lane graph as a plan keeps it (its keys, rows, directions and edges; no lane table)."""
     edges = graph._topology
-    return {"graph_keys": np.array(graph.keys, dtype=np.int64).reshape(-1, 3), "graph_rows": graph._row,
+    return {"graph_keys": graph.key_array, "graph_rows": graph._row,
             "graph_ahead": np.asarray(graph._ahead, dtype=bool), "graph_indptr": edges.indptr,
             "graph_target": edges.target, "graph_kind": edges.kind, "graph_weight": edges.weight}
 
@@ -115,8 +115,7 @@ def kept_lane_graph(odr, xodr: Path, map_sha256: str, step: float = 1.0, lane_ty
 
 def keys_digest(graph) -> str:
     """sha256 of the lane graph's keys in node order (plans name lanes by node number)."""
-    keys = np.array(graph.keys, dtype=np.int64).reshape(-1, 3)
-    return hashlib.sha256(keys.tobytes()).hexdigest()
+    return hashlib.sha256(graph.key_array.tobytes()).hexdigest()
 
 
 def read_plan(path: Path) -> dict | None:
