@@ -21,6 +21,7 @@ from collections import deque
 
 import numpy as np
 
+from tavf_mapkit.opendrive.decimal_columns import decimals_at
 from tavf_mapkit.opendrive.geometry import NARROW_COLUMNS, GeometryKind
 
 CHUNK_BYTES = 1 << 20  # read this much at a time: array operations over hundreds of planViews each
@@ -42,11 +43,8 @@ _PLAIN_CONTENT = re.compile(rb"S(?:xyhl(?:an|N))*xyhl(?:ae|E)")  # the codes of 
 _SPACES = (b" ", b"\t", b"\n")
 _QUOTE = ord('"')
 _LONGEST_TEXT = 128  # bytes of a text between values (indentation and tags) the array path takes; longer: tokens
-_LONGEST_VALUE = 32  # bytes of a value the array path takes (a double's repr is at most 24)
 _HASH_FACTORS = np.random.default_rng(15).integers(1, 2**63, _LONGEST_TEXT // 8, dtype=np.uint64) | np.uint64(1)
-_NUMBER_CHARACTER = np.zeros(256, dtype=bool)  # what a value may hold
 _NUMBER_BYTES = b"0123456789.eE+-"  # all a plain value may hold; float() decides whether it is a number
-_NUMBER_CHARACTER[np.frombuffer(_NUMBER_BYTES, dtype=np.uint8)] = True
 _OPENERS = np.frombuffer(b"SnN", dtype=np.uint8)  # tokens that end with a geometry's start tag
 _AFTER_LENGTH_CODES = b"aNE"  # the token after @length: an arc, or a line
 _AFTER_LENGTH = np.frombuffer(_AFTER_LENGTH_CODES, dtype=np.uint8)
@@ -167,7 +165,7 @@ class PlanViewScan:
     def _convert_arrays(self, data: bytes, spans: list) -> list | None:
         """``_convert`` without a Python object per token: the quotes, texts and values found with array
         operations over the chunk's bytes, a text's code looked up once per distinct text. None where this
-        cannot decide (a long text, two texts of one hash, a value float() may not read): ``_convert_tokens``."""
+        cannot decide (a long text, two texts of one hash): ``_convert_tokens``."""
         buffer = np.frombuffer(data + bytes(_LONGEST_TEXT), dtype=np.uint8)  # zeros: every window is whole
         windows = np.lib.stride_tricks.sliding_window_view(buffer, _LONGEST_TEXT)
         span_array = np.array(spans, dtype=np.int64).reshape(-1, 2)
@@ -187,10 +185,9 @@ class PlanViewScan:
         text_starts = np.insert(closing + 1, first_value, starts)
         text_ends = np.insert(opening, first_value + value_counts, closes)
         text_lengths = text_ends - text_starts
-        value_starts, value_lengths = opening + 1, closing - opening - 1
+        value_lengths = closing - opening - 1
         text_width = -(-int(text_lengths.max()) // 8) * 8
-        value_width = int(value_lengths.max())
-        if text_width > _LONGEST_TEXT or value_width > _LONGEST_VALUE:
+        if text_width > _LONGEST_TEXT:
             return None
         texts = _padded(windows, text_starts, text_lengths, text_width).view(np.uint64)
         # a hash of each text (wrapping arithmetic), then every text compared with the first of its hash
@@ -204,9 +201,7 @@ class PlanViewScan:
         codes = np.array([codes_of[text] for text in distinct_texts], dtype=np.uint8)[inverse]
         newlines = np.array([codes_of.newlines[text] for text in distinct_texts], dtype=np.int64)[inverse]
         before_tag = np.array([codes_of.before_tag[text] for text in distinct_texts], dtype=np.int64)[inverse]
-        values = _padded(windows, value_starts, value_lengths, value_width)
-        inside = np.arange(value_width, dtype=np.uint8) < value_lengths.astype(np.uint8)[:, None]
-        bad_value = (inside & ~_NUMBER_CHARACTER[values]).any(axis=1) | (value_lengths == 0)
+        numbers, bad_value = self._numbers(data, buffer, closing, value_lengths)
         bad_blocks = np.bincount(block_of_value[bad_value], minlength=len(spans)) if bad_value.any() else None
         code_bytes, kept, keep_block = codes.tobytes(), [], np.zeros(len(spans), dtype=bool)
         first_token = (np.cumsum(token_counts) - token_counts).tolist()
@@ -219,12 +214,24 @@ class PlanViewScan:
         if not kept:
             return []
         keep_token, keep_value = np.repeat(keep_block, token_counts), np.repeat(keep_block, value_counts)
-        try:
-            numbers = values[keep_value].view(f"S{value_width}").reshape(-1).astype(np.float64)
-        except ValueError:  # e.g. "1e5e5": the token path leaves it to the careful path, block by block
-            return None
         return self._queue(data, kept, codes[keep_token].tobytes(), newlines[keep_token], before_tag[keep_token],
-                           numbers)
+                           numbers[keep_value])
+
+    @staticmethod
+    def _numbers(data: bytes, buffer: np.ndarray, ends: np.ndarray, lengths: np.ndarray) -> tuple:
+        """(numbers, bad) of the values at buffer[end - length:end]: bad where a value is empty, holds a byte
+        a plain value may not (_NUMBER_BYTES) or is no number to float() ("1e5e5"): its planView is left to
+        the parser and the careful path, which names it."""
+        numbers, read = decimals_at(buffer, ends, lengths)
+        bad = np.zeros(len(numbers), dtype=bool)
+        for index in np.flatnonzero(~read).tolist():  # an exponent, a long value, a broken one: rare
+            text = data[ends[index] - lengths[index]:ends[index]]
+            try:
+                numbers[index] = float(text)
+            except ValueError:
+                bad[index] = True
+            bad[index] |= not text or bool(text.translate(None, _NUMBER_BYTES))
+        return numbers, bad
 
     def _convert_tokens(self, data: bytes, spans: list) -> list:
         """``_convert`` token by token (the texts and values as bytes objects)."""
