@@ -27,7 +27,7 @@ import shapely
 from tavf_mapkit.mesh.labelled import KIND_CODE, LabelledMesh
 from tavf_mapkit.mesh.solid_curbs import CURB_FOUNDATION
 from tavf_mapkit.mesh.solid_kit import Solid, SolidError, to_solid
-from tavf_mapkit.mesh.swept_path import centre_pieces, swept_section
+from tavf_mapkit.mesh.swept_path import CentrePieces, swept_section
 from tavf_mapkit.opendrive.sampling import sample_lanes_at
 
 JUNCTION_CURB_HEIGHT = 0.15   # m above the junction's edge (a common kerb upstand)
@@ -81,7 +81,7 @@ class CurbSurroundings:
 
     def __init__(self, odr, roads: np.ndarray | None = None):
         self.ends, self.end_road = _road_ends(odr, roads)
-        self.pieces = centre_pieces(odr, roads)
+        self.pieces = CentrePieces.of(odr, roads)
 
     def ends_of(self, roads: np.ndarray) -> np.ndarray:
         return self.ends[np.isin(self.end_road, roads)]

@@ -12,6 +12,8 @@ simple).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import manifold3d
 import numpy as np
 import shapely
@@ -26,6 +28,7 @@ DESIGN_WHEELBASE = 3.0    # m: its wheelbase (a Tesla Model S has 2.96 m)
 MARGIN = 0.25             # m: how far a driver stays off a curb
 STEP = 0.5                # m of s between centre-line samples
 PIECE = 10                # samples per piece of centre line that gets one swept width
+BOX_MARGIN = 1e-6         # m: a plan box test's allowance for the rounding of a box's bounds
 QUAD_SEGMENTS = 2         # segments per quarter circle of the round ends (coarse: it is a clearance)
 # m: the farthest a swept area (``swept_areas``) reaches from its centre line: the widest swept half width,
 # widened as its round ends are
@@ -103,22 +106,31 @@ def wheelbase_curvatures(lane: np.ndarray, points: np.ndarray, windows) -> list[
 
 
 def swept_section(odr, near: np.ndarray, anchor: np.ndarray, roads: np.ndarray | None = None,
-                  pieces: tuple | None = None) -> manifold3d.CrossSection:
+                  pieces: CentrePieces | None = None) -> manifold3d.CrossSection:
     """The swept paths of every driving lane (of the ``roads`` indices, when given) that comes within reach of
     the shapely geometries ``near``, as one manifold3d CrossSection in local x, y minus ``anchor`` (empty when
-    none comes near). ``pieces``: ``centre_pieces`` made before for (at least) those roads."""
-    lines, width, road = centre_pieces(odr, roads) if pieces is None else pieces
-    if pieces is not None and roads is not None:
-        mine = np.isin(road, roads)
-        lines, width = lines[mine], width[mine]
-    if not len(lines) or not len(near):
+    none comes near). ``pieces``: ``CentrePieces`` made before for (at least) those roads."""
+    pieces = CentrePieces.of(odr, roads) if pieces is None else pieces
+    mine = np.arange(len(pieces.width)) if roads is None else np.flatnonzero(np.isin(pieces.road, roads))
+    if not len(mine) or not len(near):
         return manifold3d.CrossSection()
-    _, hit = shapely.STRtree(lines).query(near, predicate="dwithin", distance=float(width.max()))
-    hit = np.unique(hit)
+    reach = float(pieces.width[mine].max())
+    # only pieces whose box comes within reach of the box of ``near`` can be within reach of ``near``: their
+    # LineStrings are made, the rest never are (making every piece's was a tenth of a region's mesh stage)
+    bounds = shapely.bounds(near)  # NaN for an empty geometry, which is never within reach
+    if np.all(np.isnan(bounds)):
+        return manifold3d.CrossSection()
+    low, high = np.nanmin(bounds[:, :2], axis=0) - reach, np.nanmax(bounds[:, 2:], axis=0) + reach
+    close = np.all((pieces.low[mine] <= high + BOX_MARGIN) & (pieces.high[mine] >= low - BOX_MARGIN), axis=1)
+    candidates = mine[close]
+    if not len(candidates):
+        return manifold3d.CrossSection()
+    _, hit = shapely.STRtree(pieces.lines(candidates)).query(near, predicate="dwithin", distance=reach)
+    hit = candidates[np.unique(hit)]
     if not len(hit):
         return manifold3d.CrossSection()
     # a buffer of a line has no holes
-    rings = shapely.get_exterior_ring(shapely.get_parts(swept_areas(lines[hit], width[hit])))
+    rings = shapely.get_exterior_ring(shapely.get_parts(swept_areas(pieces.lines(hit), pieces.width[hit])))
     coordinates, ring = shapely.get_coordinates(rings, return_index=True)
     cuts = np.flatnonzero(np.diff(ring)) + 1
     return manifold3d.CrossSection([part[:-1] - anchor for part in np.split(coordinates, cuts)],
@@ -147,36 +159,70 @@ def centre_pieces(odr, roads: np.ndarray | None = None) -> tuple[np.ndarray, np.
     """Every driving lane's centre line (of the ``roads`` indices, when given) in pieces of PIECE samples
     (shapely LineStrings, plan view), the swept half width of each piece (at its sharpest point) and its road.
     A piece depends on its own lane alone."""
-    arrays = odr.arrays
-    rows = (np.arange(len(arrays.lane_id)) if roads is None
-            else np.flatnonzero(np.isin(arrays.section_road[arrays.lane_section], roads)))
-    driving = np.zeros(len(arrays.lane_id), dtype=bool)
-    driving[rows] = lane_kind_codes(arrays.lane_type[rows]) == KIND_CODE["driving"]
-    sections = np.unique(arrays.lane_section[driving])
-    if not len(sections):
-        return np.zeros(0, dtype=object), np.zeros(0), np.zeros(0, dtype=np.int64)
-    sampling = sample_lanes_at(odr, *section_samples(arrays, STEP, True, sections))
-    keep = driving[sampling.pair_lane]
-    lane = sampling.pair_lane[keep]
-    centre = sampling.center_points(with_height=False)[keep, :2]
-    curvature = wheelbase_curvature(lane, centre)
-    same = lane[1:] == lane[:-1]
-    # pieces: PIECE samples each, the first sample of the next piece repeated so that pieces join
-    run_start = np.flatnonzero(np.r_[True, ~same])
-    index_in_run = np.arange(len(lane)) - np.repeat(run_start, np.diff(np.r_[run_start, len(lane)]))
-    piece = np.cumsum(np.r_[True, ~same] | ((index_in_run % PIECE == 0) & (index_in_run > 0))) - 1
-    joint = np.flatnonzero((index_in_run % PIECE == 0) & (index_in_run > 0))
-    point = np.concatenate([np.arange(len(lane)), joint])
-    owner = np.concatenate([piece, piece[joint] - 1])
-    order = np.lexsort((point, owner))
-    point, owner = point[order], owner[order]
-    counts = np.bincount(owner)
-    usable = counts[owner] >= 2
-    point, owner = point[usable], owner[usable]
-    _, owner = np.unique(owner, return_inverse=True)
-    lines = shapely.linestrings(centre[point], indices=owner)
-    width = np.zeros(owner.max(initial=-1) + 1)
-    np.maximum.at(width, owner, swept_width(curvature[point]))
-    road = np.zeros(len(width), dtype=np.int64)
-    road[owner] = sampling.road_index[keep][point]
-    return lines, width, road
+    pieces = CentrePieces.of(odr, roads)
+    return pieces.lines(np.arange(len(pieces.width))), pieces.width, pieces.road
+
+
+@dataclass(frozen=True, eq=False)
+class CentrePieces:
+    """``centre_pieces`` kept as coordinates: each piece's points, plan box, swept half width and road. The
+    LineStrings are made for the pieces asked for (``lines``), the same as ``centre_pieces``' ones."""
+
+    points: np.ndarray  # (n, 2) every piece's points, piece after piece
+    start: np.ndarray   # (m + 1,) where each piece's points start in ``points`` (and the end)
+    width: np.ndarray   # (m,) swept half width
+    road: np.ndarray    # (m,) road index
+    low: np.ndarray     # (m, 2) plan box
+    high: np.ndarray
+
+    @classmethod
+    def of(cls, odr, roads: np.ndarray | None = None) -> CentrePieces:
+        """Every driving lane's centre line (of the ``roads`` indices, when given) in pieces of PIECE samples."""
+        arrays = odr.arrays
+        rows = (np.arange(len(arrays.lane_id)) if roads is None
+                else np.flatnonzero(np.isin(arrays.section_road[arrays.lane_section], roads)))
+        driving = np.zeros(len(arrays.lane_id), dtype=bool)
+        driving[rows] = lane_kind_codes(arrays.lane_type[rows]) == KIND_CODE["driving"]
+        sections = np.unique(arrays.lane_section[driving])
+        if not len(sections):
+            return cls(np.zeros((0, 2)), np.zeros(1, dtype=np.int64), np.zeros(0), np.zeros(0, dtype=np.int64),
+                       np.zeros((0, 2)), np.zeros((0, 2)))
+        sampling = sample_lanes_at(odr, *section_samples(arrays, STEP, True, sections))
+        keep = driving[sampling.pair_lane]
+        lane = sampling.pair_lane[keep]
+        centre = sampling.center_points(with_height=False)[keep, :2]
+        curvature = wheelbase_curvature(lane, centre)
+        same = lane[1:] == lane[:-1]
+        # pieces: PIECE samples each, the first sample of the next piece repeated so that pieces join
+        run_start = np.flatnonzero(np.r_[True, ~same])
+        index_in_run = np.arange(len(lane)) - np.repeat(run_start, np.diff(np.r_[run_start, len(lane)]))
+        piece = np.cumsum(np.r_[True, ~same] | ((index_in_run % PIECE == 0) & (index_in_run > 0))) - 1
+        joint = np.flatnonzero((index_in_run % PIECE == 0) & (index_in_run > 0))
+        point = np.concatenate([np.arange(len(lane)), joint])
+        owner = np.concatenate([piece, piece[joint] - 1])
+        order = np.lexsort((point, owner))
+        point, owner = point[order], owner[order]
+        counts = np.bincount(owner)
+        usable = counts[owner] >= 2
+        point, owner = point[usable], owner[usable]
+        _, owner = np.unique(owner, return_inverse=True)
+        width = np.zeros(owner.max(initial=-1) + 1)
+        np.maximum.at(width, owner, swept_width(curvature[point]))
+        road = np.zeros(len(width), dtype=np.int64)
+        road[owner] = sampling.road_index[keep][point]
+        points = centre[point]
+        start = np.searchsorted(owner, np.arange(len(width) + 1))
+        if not len(width):
+            return cls(points, start, width, road, np.zeros((0, 2)), np.zeros((0, 2)))
+        return cls(points, start, width, road, np.minimum.reduceat(points, start[:-1], axis=0),
+                   np.maximum.reduceat(points, start[:-1], axis=0))
+
+    def lines(self, index: np.ndarray) -> np.ndarray:
+        """The LineStrings of the pieces at ``index`` (ascending or not), in that order."""
+        index = np.asarray(index, dtype=np.int64)
+        counts = self.start[index + 1] - self.start[index]
+        if not len(index):
+            return np.zeros(0, dtype=object)
+        first = np.repeat(self.start[index], counts)
+        within = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+        return shapely.linestrings(self.points[first + within], indices=np.repeat(np.arange(len(index)), counts))
