@@ -113,8 +113,12 @@ def used_vertices(faces: np.ndarray, vertex_count: int) -> tuple[np.ndarray, np.
         return np.zeros(0, dtype=np.int64), np.zeros((0, 3), dtype=np.int64)
     mask = np.zeros(vertex_count, dtype=bool)
     mask[faces.ravel()] = True
-    new_index = np.cumsum(mask, dtype=np.int64) - 1
-    return np.flatnonzero(mask), new_index[faces].reshape(-1, 3)
+    used = np.flatnonzero(mask)
+    # new numbers written at the used vertices only: a cumsum over all ``vertex_count`` was most of the time of
+    # cutting a final tile's few faces from a merged spill tile
+    new_index = np.empty(vertex_count, dtype=np.int64)
+    new_index[used] = np.arange(len(used))
+    return used, new_index[faces].reshape(-1, 3)
 
 
 def npz_bytes(arrays: dict[str, np.ndarray | None]) -> bytes:
