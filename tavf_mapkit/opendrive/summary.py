@@ -11,14 +11,14 @@ from tavf_mapkit.opendrive.geometry import ELEMENT_NAMES, GeometryKind
 
 
 def summarise(odr) -> dict:
-    lanes_by_type: Counter = Counter()
-    geometry_types: Counter = Counter()
-    for road in odr.roads:
-        geometry_types.update(ELEMENT_NAMES[GeometryKind(kind)] for kind in road.reference_line.kinds.tolist())
-        for section in road.lane_sections:
-            for lane in section.side_lanes:
-                lanes_by_type[lane.type] += 1
     bounds = odr.bounds(step=2.0)
+    # counted from the map's tables, which the bounds have just built (a region's millions of geometry records
+    # and hundreds of thousands of lanes, not visited one by one): a row per geometry, one per side lane
+    arrays = odr.arrays
+    lanes_by_type = Counter(arrays.lane_type.tolist())
+    geometry_types = {ELEMENT_NAMES[GeometryKind(kind)]: int(count)
+                      for kind, count in enumerate(np.bincount(arrays.geometries.kind).tolist())
+                      if count}
     summary = {
         "file": odr.source,
         "version": odr.header.revision,
@@ -28,7 +28,7 @@ def summarise(odr) -> dict:
             "roads": len(odr.roads),
             "junction_roads": sum(1 for road in odr.roads if road.in_junction),
             "junctions": len(odr.junctions),
-            "lane_sections": sum(len(road.lane_sections) for road in odr.roads),
+            "lane_sections": len(arrays.section_road),
             "lanes": sum(lanes_by_type.values()),
             "lanes_by_type": dict(sorted(lanes_by_type.items())),
             "geometries_by_type": dict(sorted(geometry_types.items())),
@@ -67,8 +67,8 @@ def format_summary(summary: dict) -> str:
     lines = [
         f"{summary['file']}",
         f"  OpenDRIVE {summary['version']}" + (f", name {summary['name']!r}" if summary["name"] else ""),
-        f"  roads {counts['roads']} ({counts['junction_roads']} in junctions), junctions {counts['junctions']}, "
-        f"lane sections {counts['lane_sections']}, total length {summary['total_length_m'] / 1000:.2f} km",
+        (f"  roads {counts['roads']} ({counts['junction_roads']} in junctions), junctions {counts['junctions']}, "
+         f"lane sections {counts['lane_sections']}, total length {summary['total_length_m'] / 1000:.2f} km"),
         "  lanes " + ", ".join(f"{k} {v}" for k, v in counts["lanes_by_type"].items()),
         "  geometries " + ", ".join(f"{k} {v}" for k, v in counts["geometries_by_type"].items()),
         f"  objects {counts['objects']}, signals {counts['signals']}, controllers {counts['controllers']}",

@@ -14,6 +14,7 @@ from collections.abc import Iterator
 from functools import lru_cache
 from pathlib import Path
 
+import numpy as np
 from lxml import etree
 
 from tavf_mapkit.fileutil import staged_file
@@ -348,7 +349,13 @@ def _cubic_lines(out: list, depth: int, tag: str, profile: CubicProfile, s_name:
         out.append(f'{pad}<{tag} {s_name}="{num(s0 - base)}" a="{num(a)}" b="{num(b)}" c="{num(c)}" d="{num(d)}"/>')
 
 
-_GEOMETRY_SPELLING = {kind: (ELEMENT_NAMES[kind], PARAMETER_NAMES[kind]) for kind in GeometryKind}
+_GEOMETRY_SPELLING = {int(kind): (ELEMENT_NAMES[kind], PARAMETER_NAMES[kind]) for kind in GeometryKind}
+_LINE, _ARC = int(GeometryKind.LINE), int(GeometryKind.ARC)
+
+
+def _spelled(values: np.ndarray) -> list[str]:
+    """``_num`` of every value, in one pass over a list (a region's geometry records: tens of millions)."""
+    return [text.removesuffix(".0") for text in map(repr, values.ravel().tolist())]
 
 
 def _plan_view_lines(out: list, depth: int, reference_line) -> None:
@@ -356,26 +363,28 @@ def _plan_view_lines(out: list, depth: int, reference_line) -> None:
     pad, inner, num = _PAD[depth], _PAD[depth + 1], _num
     rows = reference_line.narrow if not len(reference_line.side_index) else reference_line.rows
     extra_xml = reference_line.extra_xml or {}
-    # s, x, y, hdg, length and the first parameter of every record spelled at once (``_num`` of each)
-    spelled = [text.removesuffix(".0") for text in map(repr, rows[:, :7].ravel().tolist())]
-    for k, row in enumerate(rows.tolist()):
-        kind = GeometryKind(int(row[5]))
+    kinds = rows[:, 5].astype(np.int64)
+    # s, x, y, hdg and length of every record spelled at once, and an arc's curvature: the only numbers a line
+    # or an arc has (repr is most of the writer's time: not spent on the kind column or a line's unused slot)
+    spelled = _spelled(rows[:, :5])
+    curvatures = iter(_spelled(rows[kinds == _ARC, 6]))
+    for k, kind in enumerate(kinds.tolist()):
         tag, names = _GEOMETRY_SPELLING[kind]
-        s, x, y, hdg, length, _, first = spelled[7 * k:7 * k + 7]
+        s, x, y, hdg, length = spelled[5 * k:5 * k + 5]
         out.append(f'{pad}<geometry s="{s}" x="{x}" y="{y}" hdg="{hdg}" length="{length}">')
-        if not names:
-            out.append(f"{inner}<{tag}/>")
-        elif kind is GeometryKind.ARC:
-            out.append(f'{inner}<arc curvature="{first}"/>')
+        if kind == _LINE:
+            out.append(f"{inner}<line/>")
+        elif kind == _ARC:
+            out.append(f'{inner}<arc curvature="{next(curvatures)}"/>')
         else:
-            params = row[6:6 + len(names)]
+            params = rows[k, 6:6 + len(names)].tolist()
             shape = {}
             for name, value in zip(names, params):
                 if name == "normalized":
                     shape["pRange"] = "normalized" if value > 0.5 else "arcLength"
                 else:
                     shape[name] = num(value)
-            if kind is GeometryKind.PARAM_POLY3 and len(params) < 9:
+            if kind == int(GeometryKind.PARAM_POLY3) and len(params) < 9:
                 shape["pRange"] = "normalized"
             out.append(f"{inner}<{tag}" + "".join([f' {key}="{value}"' for key, value in shape.items()]) + "/>")
         fragments = extra_xml.get(k)
