@@ -22,6 +22,7 @@ import sys
 from dataclasses import fields, is_dataclass, replace
 from functools import lru_cache
 from importlib import import_module
+from operator import attrgetter
 from pathlib import Path
 
 import numpy as np
@@ -138,12 +139,30 @@ class _ModelPickler(pickle.Pickler):
         that is a part of a larger one (the reader keeps the reference lines' rows of many roads in one array,
         refline.RowPacker) is saved as that part, and the larger array once: a road's rows as arrays of their own
         cost Maribor's map 60 MB more."""
-        if type(obj) is np.ndarray:
+        cls = type(obj)
+        if cls is np.ndarray:
             return _array_part(obj)
-        names = _model_fields(type(obj))
-        if names is None:
+        try:  # asked of every tuple, list and dict too (a region: tens of millions): one lookup per object
+            values = _FIELD_VALUES[cls]
+        except KeyError:
+            values = _FIELD_VALUES[cls] = _field_values(cls)
+        if values is None:
             return NotImplemented
-        return _made, (type(obj), tuple([getattr(obj, name) for name in names]))
+        return _made, (cls, values(obj))
+
+
+def _field_values(cls):
+    """A function of a model object giving its field values as a tuple (in ``_model_fields`` order); None for a
+    class that is not a model class."""
+    names = _model_fields(cls)
+    if names is None:
+        return None
+    if len(names) < 2:  # attrgetter of one name gives the value, not a tuple (and of none is no getter)
+        return lambda obj: tuple([getattr(obj, name) for name in names])
+    return attrgetter(*names)
+
+
+_FIELD_VALUES: dict = {}
 
 
 def _array_part(array: np.ndarray):
