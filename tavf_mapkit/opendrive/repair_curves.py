@@ -158,28 +158,32 @@ def _repaired_line(road, fit_of: dict, tolerance: float) -> tuple[ReferenceLine 
     rows out: no Geometry record per piece."""
     line = road.reference_line
     rows, lines, extra_xml = line.rows, line.lines, line.extra_xml or {}
-    blocks, block_lines, new_extra, replaced, repairs = [], [], {}, [], []
-    count = 0
-    for i in range(len(rows)):
-        fit = fit_of.get(i)
-        source = None if lines[i] < 0 else int(lines[i])
+    replaced, chains, repairs = [], [], []
+    for i in sorted(fit_of):  # the fitted curves only: a road's other records are taken over as a block
+        fit = fit_of[i]
         if isinstance(fit, ArcChain):
-            block = _chain_rows(rows[i], fit)
             replaced.append(i)
-        else:
-            block = rows[i:i + 1]
-            if fit is not None:
-                kind = GeometryKind(int(rows[i, 5]))
-                repairs.append(Repair(KEPT_CURVE, road.id, source,
-                                      f"{ELEMENT_NAMES[kind]} at s={float(rows[i, 0]):.6g} kept: {fit}"))
-        if extra_xml.get(i):
-            new_extra[count] = extra_xml[i]  # a replaced curve's unknown children go with its first piece
-        blocks.append(block)
-        block_lines.append(np.full(len(block), lines[i], dtype=np.int32))
-        count += len(block)
+            chains.append(_chain_rows(rows[i], fit))
+        elif fit is not None:
+            source = None if lines[i] < 0 else int(lines[i])
+            kind = GeometryKind(int(rows[i, 5]))
+            repairs.append(Repair(KEPT_CURVE, road.id, source,
+                                  f"{ELEMENT_NAMES[kind]} at s={float(rows[i, 0]):.6g} kept: {fit}"))
     if not replaced:
         return None, repairs
-    new_rows = np.concatenate(blocks)
+    # each record becomes one row, a replaced curve its chain's; record i's first row is then at new_start[i]
+    block_length = np.ones(len(rows), dtype=np.int64)
+    block_length[replaced] = [len(chain) for chain in chains]
+    new_start = np.concatenate([[0], np.cumsum(block_length)[:-1]])
+    # a replaced curve's unknown children go with its first piece
+    new_extra = {int(new_start[i]): extra_xml[i] for i in sorted(extra_xml) if extra_xml[i]}
+    pieces, taken = [], 0
+    for i, chain in zip(replaced, chains):
+        pieces += [rows[taken:i], chain]
+        taken = i + 1
+    pieces.append(rows[taken:])
+    new_rows = np.concatenate(pieces)
+    new_lines = np.repeat(np.asarray(lines, dtype=np.int32), block_length)
     kinds = new_rows[:, 5]
     arcs = int(np.count_nonzero(kinds == int(GeometryKind.ARC)))
     more_lines = int(np.count_nonzero(kinds == int(GeometryKind.LINE))) - int(
@@ -189,7 +193,7 @@ def _repaired_line(road, fit_of: dict, tolerance: float) -> tuple[ReferenceLine 
     repairs.append(Repair(CURVE_AS_ARCS, road.id, first,
                           f"{len(replaced)} {names} as {arcs} arcs and {more_lines:+d} lines "
                           f"(lane borders within {tolerance * 1000:g} mm of the curve's)"))
-    return ReferenceLine.from_rows(new_rows, np.concatenate(block_lines), new_extra), repairs
+    return ReferenceLine.from_rows(new_rows, new_lines, new_extra), repairs
 
 
 def _chain_rows(row: np.ndarray, chain: ArcChain) -> np.ndarray:
@@ -286,7 +290,7 @@ class Curves:
     overrun: np.ndarray | None = None  # how much longer than the curve its used part is (< LENGTH_TOLERANCE)
 
     @staticmethod
-    def of(table, rows: np.ndarray, used: np.ndarray) -> tuple["Curves", np.ndarray]:
+    def of(table, rows: np.ndarray, used: np.ndarray) -> tuple[Curves, np.ndarray]:
         """The used part of each curve, and per curve whether it is shorter than its used length by more than
         the @length repair leaves (a reader would stand still at its end: no chain of arcs does that). Up to
         that, the chain runs on along the end's tangent (``overrun``), where the next geometry starts."""
@@ -303,7 +307,7 @@ class Curves:
         p_end = np.where(used < total, whole.p_at(np.arange(len(rows)), np.minimum(used, total)), p_max)
         return replace(whole, p_end=p_end, overrun=np.maximum(used - total, 0.0))._with_table(), short
 
-    def _with_table(self) -> "Curves":
+    def _with_table(self) -> Curves:
         n = len(self.p_end)
         edges = self.p_end[:, None] * np.linspace(0.0, 1.0, _GRID + 1)[None, :]
         half = 0.5 * np.diff(edges, axis=1)

@@ -27,12 +27,15 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from tavf_mapkit.opendrive.cubic import CubicProfile
-from tavf_mapkit.opendrive.geometry import GeometryKind, param_poly3_length
+from tavf_mapkit.opendrive.geometry import PARAMETER_NAMES, GeometryKind, param_poly3_length
 from tavf_mapkit.opendrive.refline import ReferenceLine
 from tavf_mapkit.opendrive.repair import Repair
 
 #: Repair.action of this repair
 GEOMETRY_LENGTH = "geometry length"
+
+#: parameter slots a record of each kind has (by kind number)
+_PARAMETER_SLOTS = np.array([len(PARAMETER_NAMES[kind]) for kind in sorted(PARAMETER_NAMES)])
 
 #: an @length within this of the arc length is left as it is (netconvert writes 8 decimals: 1e-8 m)
 TOLERANCE = 1e-6
@@ -72,9 +75,9 @@ def repair_geometry_lengths(odr, tolerance: float = TOLERANCE):
             continue
         roads[index] = _stretched(road, arc[rows], wrong[rows])
         changed = arc[rows][wrong[rows]] - table.length[rows][wrong[rows]]
-        first = next(g for g, bad in zip(road.reference_line.geometries, wrong[rows]) if bad)
+        first_line = int(road.reference_line.lines[int(np.argmax(wrong[rows]))])
         repairs.append(Repair(
-            GEOMETRY_LENGTH, road.id, first.line,
+            GEOMETRY_LENGTH, road.id, None if first_line < 0 else first_line,
             f"{len(changed)} paramPoly3 @length set to the curve's arc length (by {_signed(changed)} m); "
             f"road @length {road.length:.9g} -> {roads[index].length:.9g} m"))
     if not repairs:
@@ -131,16 +134,17 @@ class SMap:
         return found
 
 
-def _stretch_map(geometries, arc: np.ndarray, wrong: np.ndarray) -> SMap:
-    """The map of a road whose geometries ``wrong`` get their arc length ``arc``: each geometry's old range
-    [s, s + @length] (up to the next geometry's start) stretches by arc / @length; any s between the end of a
-    geometry and the next start (a file whose s do not follow from the lengths) only shifts."""
-    old, new, slope = [float(geometries[0].s)], [float(geometries[0].s)], []
-    for k, geometry in enumerate(geometries):
+def _stretch_map(starts: list[float], lengths: list[float], arc: np.ndarray, wrong: np.ndarray) -> SMap:
+    """The map of a road whose geometries (``starts``, @``lengths``) ``wrong`` get their arc length ``arc``: each
+    geometry's old range [s, s + @length] (up to the next geometry's start) stretches by arc / @length; any s
+    between the end of a geometry and the next start (a file whose s do not follow from the lengths) only
+    shifts."""
+    old, new, slope = [float(starts[0])], [float(starts[0])], []
+    for k, (start, length) in enumerate(zip(starts, lengths)):
         start_old, start_new = old[-1], new[-1]
-        following = geometries[k + 1].s if k + 1 < len(geometries) else np.inf
-        used = float(min(geometry.length, following - geometry.s))
-        rate = float(arc[k] / geometry.length) if wrong[k] else 1.0
+        following = starts[k + 1] if k + 1 < len(starts) else np.inf
+        used = float(min(length, following - start))
+        rate = float(arc[k] / length) if wrong[k] else 1.0
         old.append(start_old + used)
         new.append(start_new + used * rate)
         slope.append(rate)
@@ -153,17 +157,21 @@ def _stretch_map(geometries, arc: np.ndarray, wrong: np.ndarray) -> SMap:
 
 def _stretched(road, arc: np.ndarray, wrong: np.ndarray):
     """The road with every wrong @length set to the arc length and everything along s mapped by the stretch."""
-    geometries = road.reference_line.geometries
-    mapping = _stretch_map(geometries, arc, wrong)
+    line = road.reference_line
+    rows = line.rows  # a new array: changed in place
+    starts, lengths = rows[:, 0].tolist(), rows[:, 4].tolist()
+    mapping = _stretch_map(starts, lengths, arc, wrong)
     at = mapping.at
-    new_geometries = []
-    for k, geometry in enumerate(geometries):
-        changes = {"s": at(geometry.s)}
-        if wrong[k]:
-            changes["length"] = float(arc[k])
-            if geometry.params[8] < 0.5 and geometry.length > 0:  # pRange arcLength: p runs to @length
-                changes["params"] = _rescaled_arc_length_params(geometry.params, geometry.length / arc[k])
-        new_geometries.append(replace(geometry, **changes))
+    rows[:, 0] = [at(start) for start in starts]
+    # only a paramPoly3 is ever wrong (true_lengths); with pRange arcLength its p runs to @length
+    rescaled = wrong & (rows[:, 14] < 0.5) & (rows[:, 4] > 0)
+    if rescaled.any():
+        rows[rescaled, 6:14] = _rescaled_arc_length_params(rows[rescaled, 6:14], rows[rescaled, 4] / arc[rescaled])
+    rows[wrong, 4] = arc[wrong]
+    # a record keeps the parameters of its kind only, as its Geometry value would (the other slots read 0)
+    rows[:, 6:][np.arange(9) >= _PARAMETER_SLOTS[rows[:, 5].astype(np.int64)][:, None]] = 0.0
+    lines = np.where(line.lines < 0, -1, line.lines)
+    extra_xml = {k: fragments for k, fragments in (line.extra_xml or {}).items() if fragments} or None
     length = at(road.length)
 
     def profile(p: CubicProfile, end: float) -> CubicProfile:
@@ -184,7 +192,7 @@ def _stretched(road, arc: np.ndarray, wrong: np.ndarray):
         _moved(section, "s0", at, lanes=tuple(lane(item, road.section_end(k)) for item in section.lanes))
         for k, section in enumerate(road.lane_sections))
     return replace(
-        road, length=length, reference_line=ReferenceLine(tuple(new_geometries)), lane_sections=sections,
+        road, length=length, reference_line=ReferenceLine.from_rows(rows, lines, extra_xml), lane_sections=sections,
         types=moved(road.types), elevation=profile(road.elevation, road.length),
         superelevation=profile(road.superelevation, road.length), lane_offset=profile(road.lane_offset, road.length),
         shape=moved(road.shape), objects=tuple(_mapped_object(o, at) for o in road.objects),
@@ -202,12 +210,13 @@ def _moved(item, name: str, at, **more):
     return replace(item, **{name: new}, **more)
 
 
-def _rescaled_arc_length_params(params: tuple, ratio: float) -> tuple:
-    """paramPoly3 coefficients for p' = p / ratio: with pRange arcLength p runs to @length, so a new @length
-    must not extend the curve; u(p) = u'(p') with b' = b ratio, c' = c ratio^2, d' = d ratio^3."""
-    aU, bU, cU, dU, aV, bV, cV, dV, normalized = params
-    r2, r3 = ratio * ratio, ratio * ratio * ratio
-    return (aU, bU * ratio, cU * r2, dU * r3, aV, bV * ratio, cV * r2, dV * r3, normalized)
+def _rescaled_arc_length_params(params: np.ndarray, ratio: np.ndarray) -> np.ndarray:
+    """paramPoly3 coefficients (rows of aU, bU, cU, dU, aV, bV, cV, dV) for p' = p / ratio: with pRange
+    arcLength p runs to @length, so a new @length must not extend the curve; u(p) = u'(p') with b' = b ratio,
+    c' = c ratio^2, d' = d ratio^3."""
+    ratio = ratio[:, None]
+    powers = np.hstack([np.ones_like(ratio), ratio, ratio * ratio, ratio * ratio * ratio])
+    return params * np.hstack([powers, powers])
 
 
 def _mapped_profile(p: CubicProfile, mapping: SMap, end: float) -> CubicProfile:
@@ -216,10 +225,11 @@ def _mapped_profile(p: CubicProfile, mapping: SMap, end: float) -> CubicProfile:
     new profile at map(s) is the old one at s (exactly, up to rounding)."""
     if not len(p):
         return p
-    s0, coefficients = p.s0, p.coefficients
-    stops = np.append(s0[1:], max(end, s0[-1]))
+    # plain floats throughout: a road has a few records, and a region's lanes are hundreds of thousands
+    s0, coefficients = p.s0.tolist(), p.coefficients.tolist()
+    stops = [*s0[1:], float(max(end, s0[-1]))]
     new_s0, new_coefficients = [], []
-    for start, stop, (a, b, c, d) in zip(s0.tolist(), stops.tolist(), coefficients.tolist()):
+    for start, stop, (a, b, c, d) in zip(s0, stops, coefficients):
         pieces = [start] if b == c == d == 0.0 else [start, *mapping.cuts(start, stop)]
         for origin in pieces:
             rate = mapping.slope_after(origin)
@@ -230,10 +240,9 @@ def _mapped_profile(p: CubicProfile, mapping: SMap, end: float) -> CubicProfile:
             third = d / rate ** 3
             new_s0.append(mapping.at(origin))
             new_coefficients.append((value, first, second, third))
-    new_s0, new_coefficients = np.array(new_s0), np.array(new_coefficients, dtype=float).reshape(-1, 4)
-    if np.array_equal(new_s0, s0) and np.array_equal(new_coefficients, coefficients):
-        return p
-    return replace(p, s0=new_s0, coefficients=new_coefficients)
+    if new_s0 == s0 and new_coefficients == [tuple(record) for record in coefficients]:
+        return p  # equal as np.array_equal has it (==, NaN never equal: every value here is newly computed)
+    return replace(p, s0=np.array(new_s0), coefficients=np.array(new_coefficients, dtype=float).reshape(-1, 4))
 
 
 def _mapped_object(o, at):
