@@ -110,3 +110,14 @@ def test_a_plan_view_across_the_scan_chunks(monkeypatch):
     data = document(*(road(k, ARC.format(s=0, length=1) + "\n" + LINE.format(s=1, length=9)) for k in range(30)))
     same_map(data)
     assert scanned_count(data, monkeypatch) == 30
+
+
+def test_texts_of_every_width_class_are_told_apart(monkeypatch):
+    # the scan groups the texts between values by length (planview_scan._distinct_texts): texts that differ in
+    # one byte or only in length, short and long, in one chunk, must each get their own code and line count
+    spaced = [ARC.format(s=0, length=1).replace(' x="', sep + 'x="') for sep in (" ", "  ", "\t", " \t ", " " * 9)]
+    indented = [LINE.format(s=0, length=1).replace("\n", "\n" + " " * width) for width in (0, 7, 8, 30, 60, 100)]
+    odd = ARC.format(s=0, length=1).replace(' y="', ' y ="')  # one byte more than " y=": not the plain form
+    data = document(*(road(k, plan_view) for k, plan_view in enumerate(spaced + indented + [odd, PLAIN])))
+    same_map(data)
+    assert scanned_count(data, monkeypatch) == len(spaced) + len(indented)  # all but the odd one

@@ -186,16 +186,12 @@ class PlanViewScan:
         text_ends = np.insert(opening, first_value + value_counts, closes)
         text_lengths = text_ends - text_starts
         value_lengths = closing - opening - 1
-        text_width = -(-int(text_lengths.max()) // 8) * 8
-        if text_width > _LONGEST_TEXT:
+        if text_lengths.max() > _LONGEST_TEXT:
             return None
-        texts = _padded(windows, text_starts, text_lengths, text_width).view(np.uint64)
-        # a hash of each text (wrapping arithmetic), then every text compared with the first of its hash
-        key = texts @ _HASH_FACTORS[:text_width // 8] + text_lengths.astype(np.uint64)
-        _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
-        inverse = inverse.reshape(-1)
-        if not (np.array_equal(texts, texts[first][inverse]) and np.array_equal(text_lengths, text_lengths[first][inverse])):
+        distinct = _distinct_texts(windows, text_starts, text_lengths)
+        if distinct is None:
             return None
+        first, inverse = distinct
         codes_of = self._codes
         distinct_texts = [data[start:end] for start, end in zip(text_starts[first].tolist(), text_ends[first].tolist())]
         codes = np.array([codes_of[text] for text in distinct_texts], dtype=np.uint8)[inverse]
@@ -321,6 +317,41 @@ class PlanViewScan:
                 emptied.append((start, close, block_newlines[index]))
             first = end
         return emptied
+
+
+def _distinct_texts(windows: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -> tuple | None:
+    """(first, inverse): the index of one text of each distinct content, and for each text the number of its
+    content among those; None if two different texts share a hash. Texts are taken in classes of width (the
+    short ones -- " x=", " hdg=" -- are over half of them) so that each is padded to its class's width, not the
+    longest's; one of at most 7 bytes is its own key (its bytes and its length in one word)."""
+    firsts, inverse, distinct = [], np.empty(len(starts), dtype=np.int64), 0
+    narrower = -1
+    for width in _TEXT_WIDTHS:
+        rows = np.flatnonzero((lengths > narrower) & (lengths <= width))
+        narrower = width
+        if not len(rows):
+            continue
+        class_lengths = lengths[rows]
+        texts = _padded(windows, starts[rows], class_lengths, -(-width // 8) * 8)
+        if width < 8:  # its bytes, then its length in the last byte: the word says the text exactly
+            texts[:, 7] = class_lengths
+        texts = texts.view(np.uint64)
+        if width < 8:
+            key = texts[:, 0]
+        else:  # a hash (wrapping arithmetic), then every text compared with the first of its hash
+            key = texts @ _HASH_FACTORS[:width // 8] + class_lengths.astype(np.uint64)
+        _, first, class_inverse = np.unique(key, return_index=True, return_inverse=True)
+        class_inverse = class_inverse.reshape(-1)
+        if width >= 8 and not (np.array_equal(texts, texts[first][class_inverse])
+                               and np.array_equal(class_lengths, class_lengths[first][class_inverse])):
+            return None
+        firsts.append(rows[first])
+        inverse[rows] = class_inverse + distinct
+        distinct += len(first)
+    return np.concatenate(firsts), inverse
+
+
+_TEXT_WIDTHS = (7, 16, 32, 64, _LONGEST_TEXT)  # bytes: the classes of texts by length (_distinct_texts)
 
 
 def _ranges(starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
