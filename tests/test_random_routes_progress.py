@@ -273,9 +273,11 @@ def test_batched_lane_lines_are_the_one_by_one_lines_to_the_bit(berlin_build):
 
 
 def test_bends_too_gentle_to_matter_are_not_measured_but_decide_the_same():
-    """worst_cuts measures only lines whose total turning could make the car cut by more than the limit;
-    its decisions are those of measuring every line, its measured values exact, its bounds never below
-    the true cut."""
+    """worst_cuts measures only lines whose total turning (as corner_cut sees them: without points closer than
+    JOIN_GAP to the one before) could make the car cut by more than the limit; its decisions are those of
+    measuring every line, its measured values exact, its bounds never below the true cut."""
+    from twin.planning.drivable import _distinct
+
     rng = np.random.default_rng(7)
     radius = min_turn_radius()
     lines = []
@@ -297,7 +299,9 @@ def test_bends_too_gentle_to_matter_are_not_measured_but_decide_the_same():
         worst = worst_cuts(lane, points, radius, limit)
         assert np.array_equal(worst > limit, every > limit)
         assert np.all(worst >= every - 1e-12)
-        turning = np.minimum(total_turning(lane, points), 0.9 * np.pi)
+        distinct = _distinct(lane, points)  # corner_cut's thinned lines: repeated points turn nothing
+        turning = np.minimum(total_turning(lane[distinct], points[distinct]), 0.9 * np.pi)
+        assert np.all(turning <= np.minimum(total_turning(lane, points), 0.9 * np.pi) + 1e-12)
         measured = radius * (1 / np.cos(0.5 * turning) - 1) > 0.999 * limit
         assert 0 < measured.sum() < len(lines)  # both paths taken
         assert np.allclose(worst[measured], every[measured], rtol=0, atol=1e-12)

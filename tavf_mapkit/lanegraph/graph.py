@@ -27,6 +27,7 @@ from tavf_mapkit.lanegraph.geometry import (
 from tavf_mapkit.lanegraph.keys import LaneKey, drives_with_s, lane_toward_minus_t, lane_toward_plus_t
 from tavf_mapkit.lanegraph.lanechange import lane_change_allowed
 from tavf_mapkit.lanegraph.topology import lane_end_pairs
+from tavf_mapkit.memory import collector_paused
 
 
 def lane_speed_limit(road, section_index: int, lane_id: int) -> float | None:
@@ -101,6 +102,13 @@ class LaneGraph:
                        step: float = 1.0) -> LaneGraph:
         """Nodes for the lanes of ``lane_types``; follow edges from the map's links, lane changes between
         same-direction neighbours where the road mark between them allows it."""
+        # a key, a list entry and a dict entry per lane and link, next to no cycles: the collector's passes would
+        # only walk them again and again (and the loaded map, unless frozen)
+        with collector_paused():
+            return cls._from_opendrive(odr, lane_types, lane_change_cost, step)
+
+    @classmethod
+    def _from_opendrive(cls, odr, lane_types: Iterable[str], lane_change_cost: float, step: float) -> LaneGraph:
         arrays = odr.arrays
         types = set(lane_types)
         section_first = np.searchsorted(arrays.section_road, np.arange(len(odr.roads)), side="left")

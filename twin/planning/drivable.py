@@ -63,12 +63,12 @@ def min_turn_radius(params: VehicleParams = MODEL_S, limits: ActuatorLimits = CA
 def corner_cut(lane: np.ndarray, points: np.ndarray, radius: float) -> np.ndarray:
     """Per point of polylines (runs of equal ``lane``): how far (m) a car turning no tighter than ``radius``
     cuts inside the bend there, the largest over ``WINDOWS`` (near a run's ends the window is cut short)."""
-    step = np.r_[np.inf, np.hypot(*np.diff(points, axis=0).T)]
     # points closer than a path buffer's join tolerance (lane ends that nearly meet) give a step whose heading
     # is noise, not a turn: they take their predecessor's value
-    distinct = (step > JOIN_GAP) | np.r_[True, lane[1:] != lane[:-1]]
+    distinct = _distinct(lane, points)
     if not np.all(distinct):
         return corner_cut(lane[distinct], points[distinct], radius)[np.cumsum(distinct) - 1]
+    step = np.r_[np.inf, np.hypot(*np.diff(points, axis=0).T)]
     first = np.r_[True, lane[1:] != lane[:-1]]
     step[first] = 0.0
     run = np.cumsum(first) - 1
@@ -82,6 +82,14 @@ def corner_cut(lane: np.ndarray, points: np.ndarray, radius: float) -> np.ndarra
         own_radius = 1.0 / np.maximum(curvature, 1e-9)
         cut = np.maximum(cut, np.maximum(radius - own_radius, 0.0) * (1.0 / np.cos(0.5 * turn) - 1.0))
     return cut
+
+
+def _distinct(lane: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Points farther than ``JOIN_GAP`` from the point before them, and the first point of each run of equal
+    ``lane``: what ``corner_cut`` measures (in a first pass; it thins what remains again)."""
+    if not len(points):
+        return np.zeros(0, dtype=bool)
+    return np.r_[True, (np.hypot(*np.diff(points, axis=0).T) > JOIN_GAP) | (lane[1:] != lane[:-1])]
 
 
 def total_turning(lane: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -101,8 +109,12 @@ def worst_cuts(lane: np.ndarray, points: np.ndarray, radius: float, limit: float
     turns too little to cut by more than ``limit`` (see the module docstring), that bound instead, at most
     ``limit``: only the comparison with ``limit`` is exact for those."""
     run = np.cumsum(np.r_[True, lane[1:] != lane[:-1]]) - 1
+    # the turning of the line corner_cut measures, without the points it drops (dropping more never adds
+    # turning): where two lanes meet, a's last point and b's first one coincide and their "segment" has any
+    # heading, a half circle of turning in the raw line (every step of a region was measured for it);
     # corner_cut caps a window's heading change at 0.9 pi; a thousandth below the limit for rounding
-    turning = np.minimum(total_turning(lane, points), 0.9 * np.pi)
+    distinct = _distinct(lane, points)
+    turning = np.minimum(total_turning(lane[distinct], points[distinct]), 0.9 * np.pi)
     worst = radius * (1.0 / np.cos(0.5 * turning) - 1.0)
     measure = worst > 0.999 * limit
     worst[measure] = 0.0
