@@ -326,7 +326,10 @@ class Curves:
                 6 * u[..., 3], 6 * v[..., 3])
 
     def speed(self, c, p):
-        return np.hypot(*self.tangent(c, p))
+        du, dv = self.tangent(c, p)
+        if isinstance(du, np.ndarray) and du.ndim and du.shape == np.shape(dv):
+            return np.hypot(du, dv, out=du)  # into du, made for this: no third array of millions
+        return np.hypot(du, dv)
 
     def pose(self, c, p):
         """(x, y, heading) of curve c at p, in the map's frame."""
