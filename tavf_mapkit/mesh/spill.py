@@ -114,9 +114,14 @@ def _sorted_rows(keys: np.ndarray) -> bool:
     """Whether the key rows are strictly ascending (lexicographic)."""
     if len(keys) < 2:
         return True
-    step = np.sign(keys[1:] - keys[:-1])
-    first = np.argmax(step != 0, axis=1)  # the first column where two rows differ
-    return bool(np.all(step[np.arange(len(step)), first] > 0))
+    before, after = keys[:-1], keys[1:]
+    # column by column: a row is above the one before if it is greater in the first column where they differ
+    greater = np.zeros(len(before), dtype=bool)
+    equal = np.ones(len(before), dtype=bool)
+    for column in range(keys.shape[1]):
+        greater |= equal & (after[:, column] > before[:, column])
+        equal &= after[:, column] == before[:, column]
+    return bool(greater.all())
 
 
 class ChunkStore:
@@ -125,7 +130,7 @@ class ChunkStore:
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
-        self._file = open(self.path, "w+b")
+        self._file = open(self.path, "w+b")  # noqa: SIM115 -- held open for the store's life, closed by close()
         self._index: dict = defaultdict(list)
 
     def add(self, key, arrays: dict) -> None:
