@@ -34,6 +34,8 @@ class BuildContext:
     fanout: object | None = None
     #: (file key, map) the mesh stage kept for the check stage (pipeline/builtin/stage_map.py), or None
     kept_map: tuple | None = None
+    #: names of the later stages running in processes of their own (pipeline/beside.py), which load what they read
+    running_beside: set = field(default_factory=set)
 
     def section(self, name: str) -> dict:
         """The pipeline file's table ``[name]`` with command-line overrides applied."""

@@ -19,9 +19,10 @@ from pathlib import Path
 
 from tavf_mapkit import __version__
 from tavf_mapkit.errors import InputError, MapkitError, StageError
-from tavf_mapkit.osm.files import OSM_SUFFIXES, is_osm_file
-from tavf_mapkit.pipeline.buildfolder import BuildFolder
 from tavf_mapkit.memory import return_freed_memory
+from tavf_mapkit.osm.files import OSM_SUFFIXES, is_osm_file
+from tavf_mapkit.pipeline.beside import BesideStage, may_start
+from tavf_mapkit.pipeline.buildfolder import BuildFolder
 from tavf_mapkit.pipeline.config import PipelineConfig
 from tavf_mapkit.pipeline.context import BuildContext
 from tavf_mapkit.pipeline.manifest import (
@@ -116,13 +117,25 @@ def run_build(input_path: str | Path, config: PipelineConfig, output: str | Path
             context.artifacts["xodr"] = input_path.resolve()
             hashes["xodr"] = input_record["sha256"]
         records = []
-        for index, stage_name in enumerate(config.stages, 1):
-            record = _run_stage(stage_name, context, hashes, previous, folder.target, progress,
-                                f"[{index}/{len(config.stages)}]", meter)
-            records.append(record)
-            # each stage loads the map anew: what this one freed must not stay resident under the next one's
-            # peak (on Maribor the check stage started from 0.8 GB the mesh stage had freed)
-            return_freed_memory()
+        stages = [get_stage(stage_name) for stage_name in config.stages]
+        beside: dict[int, BesideStage] = {}  # stages started early in processes of their own (beside.py)
+        try:
+            for index, stage_name in enumerate(config.stages, 1):
+                _start_beside(stages, index - 1, context, hashes, previous, beside)
+                early = beside.pop(index - 1, None)
+                try:
+                    record = _run_stage(stage_name, context, hashes, previous, folder.target, progress,
+                                        f"[{index}/{len(config.stages)}]", meter, early)
+                finally:
+                    if early is not None:  # taken, or started with options that changed since: ended
+                        early.stop()
+                records.append(record)
+                # each stage loads the map anew: what this one freed must not stay resident under the next one's
+                # peak (on Maribor the check stage started from 0.8 GB the mesh stage had freed)
+                return_freed_memory()
+        finally:
+            for early in beside.values():  # the build failed or was interrupted before it reached them
+                early.stop()
         _remove_failure_logs(folder.target)
         manifest = _manifest(name, input_record, config, context, records, started, command)
         write_manifest(folder.staging, manifest)
@@ -130,9 +143,36 @@ def run_build(input_path: str | Path, config: PipelineConfig, output: str | Path
     return BuildResult(folder.target, manifest)
 
 
+def _start_beside(stages: list, position: int, context: BuildContext, hashes: dict, previous: dict | None,
+                  beside: dict) -> None:
+    """Start the later stages that may run beside ``stages[position]`` and those after it (beside.py) and would
+    run at all (not reused from the previous build)."""
+    for candidate in range(position + 1, len(stages)):
+        if candidate in beside or not may_start(stages, position, candidate, context):
+            continue
+        stage = stages[candidate]
+        try:
+            stage_fingerprint = _identity(stage, context, hashes)[2]
+        except MapkitError:
+            continue  # its options are wrong: it fails in its turn, after the stages before it
+        old = stage_record(previous, stage.name)
+        if old and old.get("fingerprint") == stage_fingerprint:
+            continue  # reused when its turn comes
+        beside[candidate] = BesideStage(stage, context, stage_fingerprint)
+        context.running_beside.add(stage.name)
+
+
+def _identity(stage, context: BuildContext, hashes: dict) -> tuple[dict, dict, str]:
+    """(the hashes of the artifacts it reads, its options, its fingerprint) as the build stands."""
+    used = {artifact: hashes[artifact] for artifact in (*stage.inputs, *stage.optional_inputs)
+            if artifact in context.artifacts}
+    options = canonical(stage.options(context))
+    return used, options, fingerprint(stage.name, stage.version, options, used)
+
+
 def _run_stage(stage_name: str, context: BuildContext, hashes: dict, previous: dict | None, target: Path,
                progress: Callable[[str], None], counter: str,
-               meter: Callable[[str], Progress] | None = None) -> dict:
+               meter: Callable[[str], Progress] | None = None, early: BesideStage | None = None) -> dict:
     stage = get_stage(stage_name)
     if stage is None:
         reason = unavailable_modules().get(stage_name)
@@ -149,21 +189,23 @@ def _run_stage(stage_name: str, context: BuildContext, hashes: dict, previous: d
         progress(f"{counter} {stage_name}: skipped, {note}")
         return {"name": stage_name, "status": "skipped", "note": note}
 
-    used = {artifact: hashes[artifact] for artifact in (*stage.inputs, *stage.optional_inputs)
-            if artifact in context.artifacts}
-    started = time.perf_counter()
+    started, seconds_beside = time.perf_counter(), None
     try:
-        options = canonical(stage.options(context))
-        stage_fingerprint = fingerprint(stage_name, stage.version, options, used)
+        used, options, stage_fingerprint = _identity(stage, context, hashes)
         old = stage_record(previous, stage_name)
         if old and old.get("fingerprint") == stage_fingerprint and _copy_outputs(old, target, context.folder):
             status, outputs, facts = "unchanged", old["outputs"], old.get("facts", {})
         else:
-            context.progress = meter(f"{counter} {stage_name}") if meter is not None else silent
-            try:
-                result = stage.run(context)
-            finally:
-                context.progress = silent
+            if early is not None and early.fingerprint == stage_fingerprint:
+                result, seconds_beside = early.result(context.note)
+            else:
+                if early is not None:  # started with options that changed since: it would write beside this run
+                    early.stop()
+                context.progress = meter(f"{counter} {stage_name}") if meter is not None else silent
+                try:
+                    result = stage.run(context)
+                finally:
+                    context.progress = silent
             status, facts = "ran", result.facts
             outputs = {}
             for artifact, relative in result.files.items():
@@ -178,23 +220,29 @@ def _run_stage(stage_name: str, context: BuildContext, hashes: dict, previous: d
     except OSError as error:
         raise StageError(f"stage {stage_name}: {error.strerror or error}",
                          file=getattr(error, "filename", None)) from None
-    seconds = time.perf_counter() - started
+    # a stage that ran beside others took its own time, not the time the pipeline waited for it
+    seconds = seconds_beside if seconds_beside is not None else time.perf_counter() - started
 
     for artifact, info in outputs.items():
         context.artifacts[artifact] = context.folder / info["path"]
         hashes[artifact] = info["sha256"]
     context.facts[stage_name] = facts
     wording = f"ran in {seconds:.2f} s" if status == "ran" else "unchanged, reused"
+    if seconds_beside is not None:
+        wording += " beside the stages before it"
     progress(f"{counter} {stage_name}: {wording}")
     usage_self = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     usage_children = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-    return {
+    record = {
         "name": stage_name, "status": status, "version": stage.version, "fingerprint": stage_fingerprint,
         "inputs": used, "options": options, "outputs": outputs, "facts": facts, "seconds": round(seconds, 4),
         # ru_maxrss is in KiB on Linux; both are maxima so far in this build, not per stage
         "peak_rss_mib": {"mapkit": round(usage_self / 1024, 1),
                          "subprocesses": round(usage_children / 1024, 1)},
     }
+    if seconds_beside is not None:
+        record["beside"] = True  # in a process of its own while the stages before it ran (pipeline/beside.py)
+    return record
 
 
 def _copy_outputs(record: dict, previous: Path, staging: Path) -> bool:

@@ -21,6 +21,10 @@ Rules the runner relies on:
 - The result depends only on the inputs' content and ``options()``; bump ``version`` when the code
   changes what it writes, so builds made by the old code are not reused.
 - ``facts`` are small, deterministic JSON values (counts, georeference, warning summaries), not timings.
+- A stage that declares ``makes`` (the artifact names its StageOutput may hold) lets a later stage with
+  ``runs_beside`` start in a process of its own while it runs, when it makes none of that stage's inputs
+  (pipeline/beside.py). Such a stage reads only its inputs and the facts of the stages before them, writes only
+  its own files, and is a module-level class (its child process imports it by name).
 """
 
 from __future__ import annotations
@@ -59,6 +63,11 @@ class Stage:
     input_kinds: ClassVar[tuple[str, ...]] = ("osm", "sumo-net", "opendrive")
     version: ClassVar[str] = "1"
     description: ClassVar[str] = ""
+    #: the artifacts it may make (its StageOutput.files' keys); None: not declared, so no later stage starts
+    #: beside it
+    makes: ClassVar[tuple[str, ...] | None] = None
+    #: it may run in a process of its own beside the stages before it once its inputs exist (pipeline/beside.py)
+    runs_beside: ClassVar[bool] = False
 
     def options(self, context: BuildContext) -> dict:
         """The options that change this stage's result (part of its fingerprint and of manifest.json)."""

@@ -38,6 +38,10 @@ THRESHOLDS = {
 
 @register_stage("check")
 class CheckStage(Stage):
+    makes = ("check_report", "check_html", "validate_report", "compare_report", "compare_plot", "match_report",
+             "match_plot")
+    # reads only NAME.xodr and the opendrive stage's facts: on a second core it validates while the tile stages run
+    runs_beside = True
     inputs = ("xodr",)
     # 2: compare.json names the xodr by file name; 3: validation findings in the verdict; 4: the page's map
     version = "5"

@@ -14,6 +14,7 @@ DEFAULT_TILE = 100.0
 
 @register_stage("collision")
 class CollisionStage(Stage):
+    makes = ("collision",)
     inputs = ("xodr",)
     optional_inputs = ("source", "mesh")
     version = "8"  # 2: reuses the mesh stage's surface at the same eps; 3: curbs around junctions (reverted in 4);

@@ -17,6 +17,7 @@ from tavf_mapkit.pipeline.stages import Stage, StageOutput, register_stage
 
 @register_stage("extract")
 class ExtractStage(Stage):
+    makes = ("source",)
     inputs = ("input",)
     input_kinds = ("osm", "sumo-net")
     version = "2"  # 2: location_driving_side (and a SUMO network's lefthand flag)

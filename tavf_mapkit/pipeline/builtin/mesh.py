@@ -14,6 +14,7 @@ from tavf_mapkit.pipeline.stages import Stage, StageOutput, register_stage
 
 @register_stage("mesh")
 class MeshStage(Stage):
+    makes = ("mesh", "mesh_preview")
     inputs = ("xodr",)
     optional_inputs = ("source",)
     version = "8"  # 2: also writes mesh/surface.npz; 3: curbs around junctions (reverted in 4); 5: junction curbs

@@ -17,6 +17,7 @@ RAW_XODR = "netconvert/{name}.xodr"
 
 @register_stage("netconvert")
 class NetconvertStage(Stage):
+    makes = ("net", "xodr", "netconvert_log")
     inputs = ("source",)
     input_kinds = ("osm", "sumo-net")
     # 2: local (0, 0) at the projection origin (no <offset>); 3: driving side (--lefthand); 4: the projection

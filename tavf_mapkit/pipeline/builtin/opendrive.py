@@ -26,6 +26,7 @@ from tavf_mapkit.pipeline.stages import Stage, StageOutput, register_stage
 
 @register_stage("opendrive")
 class OpenDriveStage(Stage):
+    makes = ("xodr", "odrmap", "opendrive_report")
     inputs = ("xodr",)
     # 2: an OpenDRIVE input becomes the build's NAME.xodr; 3: netconvert's output repaired; 4: @length set to the
     # arc length, [opendrive] repair; 5: connecting roads meet their lanes, one <controller> per id; 6: curves as

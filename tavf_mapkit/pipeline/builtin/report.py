@@ -10,6 +10,7 @@ from tavf_mapkit.pipeline.stages import Stage, StageOutput, register_stage
 
 @register_stage("report")
 class ReportStage(Stage):
+    makes = ("report", "report_text")
     inputs = ()
     optional_inputs = ("source", "net", "xodr")
     version = "1"

@@ -37,6 +37,8 @@ def stage_map(context: BuildContext, keep: bool = True):
     if context.kept_map is not None and context.kept_map[0] == key:
         return context.kept_map[1]
     odr = context.opendrive()
+    # the check stage running beside the others loads its own: kept, the map would only be held to the end
+    keep = keep and "check" not in context.running_beside
     context.kept_map = (key, odr) if keep and key[1] <= KEEP_BYTES else None
     return odr
 
