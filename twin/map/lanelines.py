@@ -201,6 +201,10 @@ class LineBatch(NamedTuple):
     at: np.ndarray  # (n + 1,)
     points: np.ndarray  # (m, 3)
     along: np.ndarray  # (m,)
+    #: per lane the sums of its heading changes between consecutive segments (plan view, each wrapped to
+    #: [-pi, pi)): signed, and of their absolute values (``drivable.total_turning``), as one sum per lane gives
+    turn: np.ndarray
+    turning: np.ndarray
 
     @property
     def length(self) -> np.ndarray:
@@ -364,10 +368,11 @@ class LaneLines:
     def _evaluate(self, keys: list[LaneKey]) -> LineBatch:
         """The lines of ``keys`` (one evaluation of the map for all of them)."""
         if not keys:
-            return LineBatch([], np.zeros(1, dtype=np.int64), np.zeros((0, 3)), np.zeros(0))
+            return LineBatch([], np.zeros(1, dtype=np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros(0), np.zeros(0))
         points, _, counts = self.graph.centerline_arrays(keys, self.step)
         lane = np.repeat(np.arange(len(keys)), counts)
-        suspect = np.flatnonzero(_may_loop_or_fold(lane, points, len(keys))).tolist()
+        turn, turning, may_change = _turns(lane, points, len(keys))
+        suspect = np.flatnonzero(may_change).tolist()
         if suspect:  # (not np.any: a list [0], the first line alone, is a suspect too)
             at = np.r_[0, np.cumsum(counts)].tolist()
             fixed = [without_folds(line) for line in lines_without_loops([points[at[i]:at[i + 1]] for i in suspect])]
@@ -379,10 +384,13 @@ class LaneLines:
             counts = counts.copy()
             counts[suspect] = [len(line) for line in fixed]
             lane = np.repeat(np.arange(len(keys)), counts)
+            # the fixed lines' own sums (each lane's sums are its own: the others' stay as they are)
+            fixed_lane = np.repeat(np.arange(len(fixed)), [len(line) for line in fixed])
+            turn[suspect], turning[suspect], _ = _turns(fixed_lane, np.concatenate(fixed), len(fixed))
         # arc length per line: each line's own sequential sum, as a cumsum of that line alone would give
         step = np.linalg.norm(np.diff(points[:, :2], axis=0), axis=1)
         along = run_cumsum(np.r_[0.0, np.where(lane[1:] == lane[:-1], step, 0.0)], lane)
-        return LineBatch(list(keys), np.r_[0, np.cumsum(counts)], points, along)
+        return LineBatch(list(keys), np.r_[0, np.cumsum(counts)], points, along, turn, turning)
 
 
 def lane_batches(graph: LaneGraph, keys: list[LaneKey], step: float):
@@ -401,17 +409,21 @@ def lane_batches(graph: LaneGraph, keys: list[LaneKey], step: float):
         yield keys[lo:hi]
 
 
-def _may_loop_or_fold(lane: np.ndarray, points: np.ndarray, count: int) -> np.ndarray:
-    """Per line (runs of ``lane`` 0 .. count-1): may ``without_loops`` or ``without_folds`` change it? A loop
-    needs half a circle of turning, a fold a repeated point or a cusp; the margins make this a superset."""
+def _turns(lane: np.ndarray, points: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per line (runs of ``lane`` 0 .. count-1): the sum of its heading changes between consecutive segments
+    (each wrapped to [-pi, pi)), the sum of their absolute values, and whether ``without_loops`` or
+    ``without_folds`` may change it: a loop needs half a circle of turning, a fold a repeated point or a cusp
+    (the margins make this a superset). One pass over the headings for the filters and the bends."""
     d = np.diff(points[:, :2], axis=0)
     same = lane[1:] == lane[:-1]
     repeated = same & (np.hypot(d[:, 0], d[:, 1]) <= 1e-9)
     heading = np.arctan2(d[:, 1], d[:, 0])
-    turn = np.abs((np.diff(heading) + np.pi) % (2 * np.pi) - np.pi)
+    wrapped = (np.diff(heading) + np.pi) % (2 * np.pi) - np.pi
+    absolute = np.abs(wrapped)
     inside = same[1:] & same[:-1]
     owner = lane[1:-1][inside]
-    turning = np.bincount(owner, weights=turn[inside], minlength=count)
-    cusp = np.bincount(owner, weights=turn[inside] > CUSP - 1e-6, minlength=count) > 0
+    turn = np.bincount(owner, weights=wrapped[inside], minlength=count)
+    turning = np.bincount(owner, weights=absolute[inside], minlength=count)
+    cusp = np.bincount(owner, weights=absolute[inside] > CUSP - 1e-6, minlength=count) > 0
     has_repeat = np.bincount(lane[1:][repeated], minlength=count) > 0
-    return (turning >= np.pi * (1 - 1e-6)) | cusp | has_repeat
+    return turn, turning, (turning >= np.pi * (1 - 1e-6)) | cusp | has_repeat

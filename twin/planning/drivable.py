@@ -104,17 +104,24 @@ def total_turning(lane: np.ndarray, points: np.ndarray) -> np.ndarray:
     return np.bincount(run[1:-1][inside], weights=turn[inside], minlength=run[-1] + 1 if len(run) else 0)
 
 
-def worst_cuts(lane: np.ndarray, points: np.ndarray, radius: float, limit: float) -> np.ndarray:
+def worst_cuts(lane: np.ndarray, points: np.ndarray, radius: float, limit: float,
+               turning: np.ndarray | None = None) -> np.ndarray:
     """Per run of equal ``lane`` (runs numbered 0, 1, ... in order): the largest ``corner_cut``; for a run that
     turns too little to cut by more than ``limit`` (see the module docstring), that bound instead, at most
-    ``limit``: only the comparison with ``limit`` is exact for those."""
+    ``limit``: only the comparison with ``limit`` is exact for those. ``turning``: the runs' ``total_turning``
+    when the caller has it."""
     run = np.cumsum(np.r_[True, lane[1:] != lane[:-1]]) - 1
     # the turning of the line corner_cut measures, without the points it drops (dropping more never adds
     # turning): where two lanes meet, a's last point and b's first one coincide and their "segment" has any
-    # heading, a half circle of turning in the raw line (every step of a region was measured for it);
-    # corner_cut caps a window's heading change at 0.9 pi; a thousandth below the limit for rounding
+    # heading, a half circle of turning in the raw line (every step of a region was measured for it)
     distinct = _distinct(lane, points)
-    turning = np.minimum(total_turning(lane[distinct], points[distinct]), 0.9 * np.pi)
+    turning = total_turning(lane, points) if turning is None else np.array(turning, dtype=float)
+    if not np.all(distinct):
+        thinned = np.unique(run[~distinct])
+        kept = np.isin(run, thinned) & distinct
+        turning[thinned] = total_turning(run[kept], points[kept])
+    # corner_cut caps a window's heading change at 0.9 pi; a thousandth below the limit for rounding
+    turning = np.minimum(turning, 0.9 * np.pi)
     worst = radius * (1.0 / np.cos(0.5 * turning) - 1.0)
     measure = worst > 0.999 * limit
     worst[measure] = 0.0
@@ -162,11 +169,8 @@ def undrivable_lanes(graph: LaneGraph, lines: LaneLines, radius: float | None = 
         start, stop = points[first + 1] - points[first], points[first + counts - 1] - points[first + counts - 2]
         first_heading.append(np.arctan2(start[:, 1], start[:, 0]))
         last_heading.append(np.arctan2(stop[:, 1], stop[:, 0]))
-        cut.append(worst_cuts(lane, points, radius, max_cut))
-        d = np.diff(points, axis=0)
-        inside = (lane[1:-1] == lane[:-2]) & (lane[2:] == lane[1:-1])  # consecutive segments of one lane
-        turn.append(np.bincount(lane[1:-1][inside], weights=_wrap(np.diff(np.arctan2(d[:, 1], d[:, 0])))[inside],
-                                minlength=len(chosen)))
+        cut.append(worst_cuts(lane, points, radius, max_cut, batch.turning[chosen]))
+        turn.append(batch.turn[chosen])
     if not measured:
         return {}
     cut, turn = np.concatenate(cut), np.concatenate(turn)
