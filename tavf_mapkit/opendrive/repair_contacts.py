@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from itertools import pairwise
 
 import numpy as np
 
@@ -53,7 +54,7 @@ from tavf_mapkit.opendrive.connecting_curve import (
     smooth_step,
     wrap,
 )
-from tavf_mapkit.opendrive.cubic import EMPTY_PROFILE, CubicProfile
+from tavf_mapkit.opendrive.cubic import EMPTY_PROFILE
 from tavf_mapkit.opendrive.geometry import GeometryKind
 from tavf_mapkit.opendrive.junction import Connection, LaneLink
 from tavf_mapkit.opendrive.refline import ReferenceLine
@@ -273,7 +274,7 @@ def _groups(road, ends) -> list[list]:
     ends: each run can be one road."""
     lanes = sorted(road.lane_sections[0].side_lanes, key=lambda lane: abs(lane.id))
     groups = [[lanes[0]]]
-    for before, lane in zip(lanes, lanes[1:]):
+    for before, lane in pairwise(lanes):
         adjacent = all(np.hypot(*(end.outer[before.id] - end.inner[lane.id])) <= TOLERANCE for end in ends)
         if adjacent:
             groups[-1].append(lane)
@@ -303,13 +304,14 @@ def _misfit(road, ends, table, widths=None) -> tuple[float, float]:
 
 
 def _length_consistent(road) -> bool:
-    geometries = road.reference_line.geometries
-    if abs(geometries[0].s) > TOLERANCE:
+    rows = road.reference_line.narrow  # s and @length of each record (no Geometry values made)
+    starts, lengths = rows[:, 0].tolist(), rows[:, 4].tolist()
+    if abs(starts[0]) > TOLERANCE:
         return False
-    for before, after in zip(geometries, geometries[1:]):
-        if abs(after.s - before.s - before.length) > TOLERANCE:
+    for k in range(len(starts) - 1):
+        if abs(starts[k + 1] - starts[k] - lengths[k]) > TOLERANCE:
             return False
-    return abs(geometries[-1].s + geometries[-1].length - road.length) <= TOLERANCE
+    return abs(starts[-1] + lengths[-1] - road.length) <= TOLERANCE
 
 
 def _width(end, lane_id) -> float:
