@@ -32,7 +32,7 @@ from tavf_mapkit.fileutil import write_text_atomic
 from tavf_mapkit.mesh.export import check_export_options, mesh_summary, write_materials
 from tavf_mapkit.mesh.labelled import KIND_CODE, SURFACE_KINDS, LabelledMesh, npz_bytes
 from tavf_mapkit.mesh.materials import mark_material
-from tavf_mapkit.mesh.spill import ChunkStore, Keyed, from_arrays, keyed_by_group, merge
+from tavf_mapkit.mesh.spill import ChunkStore, Keyed, from_arrays, key_order, keyed_by_group, merge
 from tavf_mapkit.mesh.tiles import face_tiles, solid_tiles
 from tavf_mapkit.mesh.units import BLOCK
 from tavf_mapkit.progress import Progress, Report, reporter
@@ -735,7 +735,7 @@ def _labelled_bytes(surface: Keyed | None, whole: list[dict]) -> bytes:
             solids += SceneSolids.from_arrays(data).solids
             keys.append(data["solid_key"])
         keys = np.concatenate(keys)
-        order = np.lexsort(keys.T[::-1])
+        order = key_order(keys)
         arrays.update({f"solids_{name}": value for name, value in
                        SceneSolids(tuple(solids[k] for k in order.tolist()), ()).arrays().items()
                        if name != "skipped"})
