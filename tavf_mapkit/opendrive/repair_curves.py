@@ -249,20 +249,12 @@ def _lateral_offsets(arrays, sample_section: np.ndarray, sample_s: np.ndarray):
     ``sampling.sample_lanes_at`` (its pairs, its ``border_offsets``, its sample budget) that the widest offset
     needs, without the reference line's pose at every sample, which it does not (half of the sampling's time)."""
     from tavf_mapkit.opendrive.borders import border_offsets
+    from tavf_mapkit.opendrive.sampling import lane_pairs
 
     sample_section, sample_s = np.asarray(sample_section, dtype=np.int64), np.asarray(sample_s, dtype=float)
     lane_offset = arrays.section_lane_offset(sample_section, sample_s)
-    counts = np.bincount(sample_section, minlength=len(arrays.section_s0))
-    starts = np.zeros(len(arrays.section_s0), dtype=np.int64)
-    if len(sample_section):
-        present, first = np.unique(sample_section, return_index=True)
-        starts[present] = first
-    lane_counts = counts[arrays.lane_section]
-    arrays.budget.check(arrays.section_road[arrays.lane_section], lane_counts, "lane samples")
-    pair_lane = np.repeat(np.arange(len(arrays.lane_id)), lane_counts)
-    within = np.arange(len(pair_lane)) - np.repeat(np.cumsum(lane_counts) - lane_counts, lane_counts)
-    s = sample_s[starts[arrays.lane_section][pair_lane] + within]
-    _, t_outer = border_offsets(arrays, pair_lane, s, np.arange(len(pair_lane)) - lane_counts[pair_lane])
+    pair_lane, pair_sample, inner_pair = lane_pairs(arrays, sample_section)
+    _, t_outer = border_offsets(arrays, pair_lane, sample_s[pair_sample], inner_pair)
     return lane_offset, arrays.section_road[arrays.lane_section[pair_lane]], t_outer
 
 

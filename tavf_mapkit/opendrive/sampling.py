@@ -163,6 +163,25 @@ def sample_sections(odr, step: float, sections: np.ndarray, include_end: bool = 
     return sample_lanes_at(odr, *section_samples(odr.arrays, step, include_end, sections))
 
 
+def lane_pairs(arrays, sample_section: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(lane, sample, inner neighbour's pair) of every (lane, sample) pair of samples grouped by section: lane by
+    lane, inside a lane in sample order; the number of pairs is checked against the map's budget first."""
+    counts = np.bincount(sample_section, minlength=len(arrays.section_s0))
+    # first sample of each section (samples are grouped, so the first occurrence starts the run)
+    starts = np.zeros(len(arrays.section_s0), dtype=np.int64)
+    if len(sample_section):
+        present, first = np.unique(sample_section, return_index=True)
+        starts[present] = first
+    lane_counts = counts[arrays.lane_section]
+    arrays.budget.check(arrays.section_road[arrays.lane_section], lane_counts, "lane samples")
+    pair_lane = np.repeat(np.arange(len(arrays.lane_id)), lane_counts)
+    within = np.arange(len(pair_lane)) - np.repeat(np.cumsum(lane_counts) - lane_counts, lane_counts)
+    pair_sample = starts[arrays.lane_section][pair_lane] + within
+    # lanes of one side are consecutive rows: the inner neighbour's pair is one section-sample count earlier
+    inner_pair = np.arange(len(pair_lane)) - lane_counts[pair_lane]
+    return pair_lane, pair_sample, inner_pair
+
+
 def sample_lanes_at(odr, sample_section: np.ndarray, sample_s: np.ndarray) -> LaneSampling:
     """Reference frame at each sample and border offsets of every side lane of its section.
 
@@ -175,24 +194,8 @@ def sample_lanes_at(odr, sample_section: np.ndarray, sample_s: np.ndarray) -> La
     road = arrays.section_road[sample_section]
     x, y, z, heading, slope, superelevation, _ = arrays.reference(road, sample_s)
     lane_offset = arrays.section_lane_offset(sample_section, sample_s)
-
-    n_sections = len(arrays.section_s0)
-    counts = np.bincount(sample_section, minlength=n_sections)
-    # first sample of each section (samples are grouped, so the first occurrence starts the run)
-    starts = np.zeros(n_sections, dtype=np.int64)
-    if len(sample_section):
-        present, first = np.unique(sample_section, return_index=True)
-        starts[present] = first
-    lane_counts = counts[arrays.lane_section]
-    arrays.budget.check(arrays.section_road[arrays.lane_section], lane_counts, "lane samples")
-    pair_lane = np.repeat(np.arange(len(arrays.lane_id)), lane_counts)
-    lane_pair_starts = np.cumsum(lane_counts) - lane_counts
-    within = np.arange(len(pair_lane)) - np.repeat(lane_pair_starts, lane_counts)
-    pair_sample = starts[arrays.lane_section][pair_lane] + within
-    s = sample_s[pair_sample]
-    # lanes of one side are consecutive rows: the inner neighbour's pair is one section-sample count earlier
-    inner_pair = np.arange(len(pair_lane)) - lane_counts[pair_lane]
-    t_inner, t_outer = border_offsets(arrays, pair_lane, s, inner_pair)
+    pair_lane, pair_sample, inner_pair = lane_pairs(arrays, sample_section)
+    t_inner, t_outer = border_offsets(arrays, pair_lane, sample_s[pair_sample], inner_pair)
     return LaneSampling(odr, sample_section, sample_s, x, y, z, heading, slope, superelevation, lane_offset,
                         pair_lane, pair_sample, t_inner, t_outer)
 
