@@ -31,6 +31,11 @@ from tavf_mapkit.progress import silent
 MIN_INPUT_BYTES = 8 << 20
 
 
+#: cores to spare for it: the load average counts the build itself (about 1.0 while a stage runs on a quiet
+#: 2-core machine, 2 and more beside another job)
+IDLE_CORES = 0.5
+
+
 def idle_cores() -> float:
     """Cores this process may use beyond the one it runs on, less the machine's load (its last minute's average,
     this build included): on a busy machine a second process only competes with the first and costs its start."""
@@ -61,7 +66,7 @@ def may_start(stages: list, position: int, candidate: int, context) -> bool:
     if any(name not in context.artifacts for name in stage.inputs):
         return False
     size = sum(_bytes(context.artifacts[name]) for name in reads if name in context.artifacts)
-    return size >= MIN_INPUT_BYTES and idle_cores() >= 1
+    return size >= MIN_INPUT_BYTES and idle_cores() >= IDLE_CORES
 
 
 def _bytes(path: Path) -> int:
