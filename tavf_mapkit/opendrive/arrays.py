@@ -1,7 +1,7 @@
 """The whole map flattened into tables, so that sampling every lane of every road is a few numpy calls.
 
-Lookups across roads use a combined key ``group + i*s`` (group = road or lane row index; complex numbers order
-lexicographically), so one exact searchsorted finds the governing record of every sample of every road at once.
+Lookups across roads find the governing record of every sample of every road at once: each query's group (road
+or lane row index) gives its records' rows, and a binary search in s inside them, all queries together, is exact.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import numpy as np
 
 from tavf_mapkit.opendrive.budget import SampleBudget
 from tavf_mapkit.opendrive.cubic import CubicProfile
-from tavf_mapkit.opendrive.geometry import GeometryTable, group_keys
+from tavf_mapkit.opendrive.geometry import GeometryTable
 from tavf_mapkit.opendrive.refline import gather_rows, gather_side
 
 
@@ -27,17 +27,46 @@ class RecordTable:
     extend_first: bool
 
     @property
-    def keys(self) -> np.ndarray:
-        """group + i*s0: numpy orders complex numbers lexicographically, so the search is exact in s (a real key
-        group + s0/span would merge records closer than the key's resolution, as GeometryTable.locate notes)."""
-        keys = self.__dict__.get("_keys")
-        if keys is None:
-            keys = group_keys(self.group, self.s0)
-            object.__setattr__(self, "_keys", keys)
-        return keys
+    def group_bounds(self) -> np.ndarray:
+        """Where each group's records start in the table, for groups 0 .. the last one with records (and the
+        table's end after it): a query's group finds its records by two lookups, not a search of the table."""
+        bounds = self.__dict__.get("_group_bounds")
+        if bounds is None:
+            groups = int(self.group[-1]) + 1 if len(self.group) else 0
+            bounds = np.searchsorted(self.group, np.arange(groups + 1), side="left")
+            object.__setattr__(self, "_group_bounds", bounds)
+        return bounds
+
+    def _last_at_or_before(self, group: np.ndarray, s: np.ndarray, inclusive: bool) -> np.ndarray:
+        """Row of the table's last record whose (group, s0) is at or before (``inclusive``) or strictly before
+        (group, s), -1 if none: exact in s, by a binary search inside each query's group (all queries at once;
+        most groups hold one or two records). The same rows a search of keys ``group + i*s0`` finds, where
+        complex numbers order lexicographically (what this table searched until a region's sampling spent a
+        tenth of its time comparing complex keys); for a non-finite s those keys were NaN + i*s, past every key
+        seen from the right and before every key seen from the left, so such an s finds the table's last
+        record (``inclusive``) or none."""
+        bounds = self.group_bounds
+        top = len(bounds) - 1
+        low = bounds[np.clip(group, 0, top)]
+        high = bounds[np.clip(group + 1, 0, top)]
+        finite = np.isfinite(s)
+        # invariant: records [group's first, low) are before s, [high, group's end) are not
+        open_ = np.flatnonzero(finite & (low < high))
+        while len(open_):
+            at, end, query = low[open_], high[open_], s[open_]
+            middle = (at + end) >> 1
+            value = self.s0[middle]
+            before = value <= query if inclusive else value < query
+            low[open_] = np.where(before, middle + 1, at)
+            high[open_] = np.where(before, end, middle)
+            open_ = open_[low[open_] < high[open_]]
+        index = low - 1
+        if not finite.all():
+            index[~finite] = len(self.s0) - 1 if inclusive else -1
+        return index
 
     @staticmethod
-    def build(profiles: list[CubicProfile], span: float, extend_first: bool = False) -> "RecordTable":
+    def build(profiles: list[CubicProfile], span: float, extend_first: bool = False) -> RecordTable:
         counts = np.array([len(p) for p in profiles], dtype=np.int64)
         group = np.repeat(np.arange(len(profiles)), counts)
         nonempty = [p for p in profiles if len(p)]
@@ -62,16 +91,18 @@ class RecordTable:
         force (the limit from the left: the value at the end of the interval before s)."""
         if not len(self.s0):
             return np.zeros(len(s))
-        key = group + 1j * s
-        index = np.searchsorted(self.keys, key, side="right") - 1
+        group = np.asarray(group, dtype=np.int64)
+        s = np.asarray(s, dtype=float)
+        index = self._last_at_or_before(group, s, inclusive=True)
         if from_left is not None:
-            before = np.searchsorted(self.keys, key, side="left") - 1
+            before = self._last_at_or_before(group, s, inclusive=False)
             # only inside the group: at the group's first record there is nothing to its left
             same = (before >= 0) & (self.group[np.maximum(before, 0)] == group)
             index = np.where(np.asarray(from_left, dtype=bool) & same, before, index)
         if self.extend_first:
             # before a group's first record: use that first record
-            first = np.searchsorted(self.group, group, side="left")
+            bounds = self.group_bounds
+            first = bounds[np.clip(group, 0, len(bounds) - 1)]
             index = np.where((index < first) & (first < len(self.group)), first, index)
         i = np.clip(index, 0, len(self.s0) - 1)
         valid = (index >= 0) & (self.group[i] == group)
@@ -111,7 +142,7 @@ class NetworkArrays:
     budget: SampleBudget | None = None  # what sampling this map may allocate (ask before allocating)
 
     @staticmethod
-    def build(odr) -> "NetworkArrays":
+    def build(odr) -> NetworkArrays:
         roads = odr.roads
         lengths = np.array([road.length for road in roads], dtype=float)
         span = float(max(lengths.max(initial=0.0), 1.0) * 2.0 + 10.0)

@@ -165,20 +165,26 @@ def sample_sections(odr, step: float, sections: np.ndarray, include_end: bool = 
 
 def lane_pairs(arrays, sample_section: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(lane, sample, inner neighbour's pair) of every (lane, sample) pair of samples grouped by section: lane by
-    lane, inside a lane in sample order; the number of pairs is checked against the map's budget first."""
-    counts = np.bincount(sample_section, minlength=len(arrays.section_s0))
-    # first sample of each section (samples are grouped, so the first occurrence starts the run)
-    starts = np.zeros(len(arrays.section_s0), dtype=np.int64)
-    if len(sample_section):
-        present, first = np.unique(sample_section, return_index=True)
-        starts[present] = first
-    lane_counts = counts[arrays.lane_section]
-    arrays.budget.check(arrays.section_road[arrays.lane_section], lane_counts, "lane samples")
-    pair_lane = np.repeat(np.arange(len(arrays.lane_id)), lane_counts)
+    lane, inside a lane in sample order; the number of pairs is checked against the map's budget first.
+
+    The work is that of the sections sampled, not of the map: the adaptive mesher asks a few times per batch
+    for a handful of samples, and whole-map tables per call were most of a region's sampling time."""
+    sample_section = np.asarray(sample_section, dtype=np.int64)
+    # the sections sampled, each with its first sample (samples are grouped: the first occurrence starts the run)
+    present, first, counts = np.unique(sample_section, return_index=True, return_counts=True)
+    # lanes are rows ordered by section: each sampled section's lanes are one run of rows
+    lane_start = np.searchsorted(arrays.lane_section, present, side="left")
+    lanes_per_section = np.searchsorted(arrays.lane_section, present, side="right") - lane_start
+    lane_of = np.repeat(np.arange(len(present)), lanes_per_section)  # sampled section of each lane below
+    lanes = np.arange(len(lane_of)) - np.repeat(np.cumsum(lanes_per_section) - lanes_per_section,
+                                                lanes_per_section) + np.repeat(lane_start, lanes_per_section)
+    lane_counts = counts[lane_of]
+    arrays.budget.check(arrays.section_road[arrays.lane_section[lanes]], lane_counts, "lane samples")
+    pair_lane = np.repeat(lanes, lane_counts)
     within = np.arange(len(pair_lane)) - np.repeat(np.cumsum(lane_counts) - lane_counts, lane_counts)
-    pair_sample = starts[arrays.lane_section][pair_lane] + within
+    pair_sample = np.repeat(first[lane_of], lane_counts) + within
     # lanes of one side are consecutive rows: the inner neighbour's pair is one section-sample count earlier
-    inner_pair = np.arange(len(pair_lane)) - lane_counts[pair_lane]
+    inner_pair = np.arange(len(pair_lane)) - np.repeat(lane_counts, lane_counts)
     return pair_lane, pair_sample, inner_pair
 
 
