@@ -27,21 +27,11 @@ class BodyPart:
     mesh: LabelledMesh
 
 
-def split_faces(mesh: LabelledMesh, tiles: np.ndarray, group: str) -> list[BodyPart]:
-    """One part per tile of a mesh whose faces are assigned to ``tiles`` ((m, 2) indices), sorted by tile."""
-    if not len(mesh.faces):
-        return []
-    keys, inverse = np.unique(tiles, axis=0, return_inverse=True)
-    inverse = inverse.ravel()
-    order = np.argsort(inverse, kind="stable")
-    bounds = np.searchsorted(inverse[order], np.arange(len(keys) + 1))
-    parts = []
-    for k, (i, j) in enumerate(keys):
-        mask = np.zeros(len(mesh.faces), dtype=bool)
-        mask[order[bounds[k]:bounds[k + 1]]] = True
-        name = tile_name((int(i), int(j)))
-        parts.extend(_fit(BodyPart(f"{name}_{group}", name, (int(i), int(j)), group, mesh.select(mask))))
-    return parts
+def tile_body_parts(mesh: LabelledMesh, index: tuple[int, int], group: str) -> list[BodyPart]:
+    """The body of one tile and group (``mesh``: its faces only, every vertex used), or its quarters when it has
+    too many vertices."""
+    name = tile_name(index)
+    return _fit(BodyPart(f"{name}_{group}", name, index, group, mesh))
 
 
 def _fit(part: BodyPart) -> list[BodyPart]:
