@@ -77,17 +77,18 @@ def file_key(xodr: str | Path) -> bytes:
     return bytes.fromhex(file_sha256(xodr))
 
 
-def snapshot_file(xodr: str | Path, path: str | Path | None = None) -> OpenDriveMap:
+def snapshot_file(xodr: str | Path, path: str | Path | None = None, sha256: str | None = None) -> OpenDriveMap:
     """Read ``xodr`` and save what was read as its snapshot (``path``, default beside it), atomically; the map.
     The snapshot is made from a fresh read, never from a map in use: it holds exactly what the reader returns,
-    not the caches (``arrays``, ...) that use adds, nor a map changed in memory that the file does not say."""
+    not the caches (``arrays``, ...) that use adds, nor a map changed in memory that the file does not say.
+    ``sha256``: the file's (hex), when its writer took it as it wrote it (a region's: 500 MB not read again)."""
     from tavf_mapkit.fileutil import staged_file
     from tavf_mapkit.opendrive.reader import load_opendrive
 
     odr = load_opendrive(xodr)
     path = Path(path) if path is not None else snapshot_path(xodr)
     with staged_file(path) as temporary, open(temporary, "wb") as handle:
-        handle.write(_MAGIC + code_key() + file_key(xodr))
+        handle.write(_MAGIC + code_key() + (bytes.fromhex(sha256) if sha256 is not None else file_key(xodr)))
         _ModelPickler(handle, protocol=5).dump(odr)
     return odr
 

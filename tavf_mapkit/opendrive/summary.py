@@ -5,9 +5,56 @@ from __future__ import annotations
 from collections import Counter
 
 import numpy as np
+from lxml import etree
 
 from tavf_mapkit.errors import MapkitError
 from tavf_mapkit.opendrive.geometry import ELEMENT_NAMES, GeometryKind
+
+#: the elements the build report counts (``ElementCounts``), in any namespace: some writers put OpenDRIVE in a
+#: default namespace (the A9 HD map)
+COUNTED_TAGS = ("{*}road", "{*}junction", "{*}signal", "{*}object")
+COUNTED_NAMES = frozenset(tag.removeprefix("{*}") for tag in COUNTED_TAGS)
+
+
+class ElementCounts:
+    """The roads, junctions (children of the document's root only), signals and objects of an OpenDRIVE document
+    and the sum of its roads' @length, counted as its elements end -- the numbers of the build report's
+    "opendrive" part. One definition for both ways they are made: a streaming pass over a file
+    (``pipeline.summary.opendrive_counts``) and the writer, which counts what it writes (``writer.write_opendrive``:
+    a region's report need not parse the 500 MB it wrote again)."""
+
+    __slots__ = ("junctions", "length", "objects", "roads", "signals")
+
+    def __init__(self) -> None:
+        self.roads = self.junctions = self.signals = self.objects = 0
+        self.length = 0.0  # added in the order the roads end in the document, as a pass over the file adds them
+
+    def ended(self, element) -> None:
+        """One element of COUNTED_TAGS, at its end (its parent known)."""
+        tag = etree.QName(element).localname
+        if tag == "road":
+            self.add_road(float(element.get("length", 0.0) or 0.0))
+        elif tag == "junction":
+            parent = element.getparent()
+            if parent is not None and etree.QName(parent).localname == "OpenDRIVE":
+                self.junctions += 1
+        elif tag == "signal":
+            self.signals += 1
+        elif tag == "object":
+            self.objects += 1
+
+    def add_tree(self, element) -> None:
+        """Every counted element of ``element``'s tree, itself included, in the order they end."""
+        for _event, ended in etree.iterwalk(element, events=("end",), tag=COUNTED_TAGS):
+            self.ended(ended)
+
+    def add_road(self, length: float) -> None:
+        self.roads += 1
+        self.length += length
+
+    def as_dict(self) -> dict:
+        return {"roads": self.roads, "junctions": self.junctions, "signals": self.signals, "objects": self.objects,
+                "road_length_km": round(self.length / 1000, 3)}
 
 
 def summarise(odr) -> dict:

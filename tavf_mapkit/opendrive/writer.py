@@ -9,8 +9,10 @@ does (a namespaced attribute or fragment, an attribute value that is not a strin
 
 from __future__ import annotations
 
+import hashlib
 import re
 from collections.abc import Iterator
+from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
@@ -21,6 +23,8 @@ from tavf_mapkit.fileutil import staged_file
 from tavf_mapkit.opendrive.cubic import CubicProfile
 from tavf_mapkit.opendrive.geometry import ELEMENT_NAMES, PARAMETER_NAMES, GeometryKind
 from tavf_mapkit.opendrive.network import OpenDriveMap
+from tavf_mapkit.opendrive.road import Road
+from tavf_mapkit.opendrive.summary import COUNTED_NAMES, ElementCounts
 from tavf_mapkit.xmlsafe import safe_parser
 
 
@@ -59,28 +63,78 @@ def to_xml(odr: OpenDriveMap) -> bytes:
     return b"".join(_serialized(odr))
 
 
-def write_opendrive(odr: OpenDriveMap, path: str | Path) -> None:
+@dataclass(frozen=True)
+class WrittenOpenDrive:
+    """What ``write_opendrive`` knows of the file it wrote: its sha256 (hex, as ``manifest.file_sha256`` gives
+    it) and its ``ElementCounts`` as a dict (what ``pipeline.summary.opendrive_counts`` of the file gives), None
+    when a counted element in it has a @length that is no number (the pass over the file fails on it)."""
+
+    sha256: str
+    counts: dict | None
+
+
+def write_opendrive(odr: OpenDriveMap, path: str | Path) -> WrittenOpenDrive:
     """Write atomically (a temporary file beside the target, then a rename), one top-level element at a time:
-    a whole-document tree of a region's OpenDRIVE takes several GB (Maribor's build was killed at 6 GB)."""
+    a whole-document tree of a region's OpenDRIVE takes several GB (Maribor's build was killed at 6 GB).
+    The file's sha256 and counts are taken as it is written: a region's is 500 MB, read again for each."""
+    digest, counts = hashlib.sha256(), _WriterCounts()
     with staged_file(path) as temporary, open(temporary, "wb") as out:
-        out.writelines(_serialized(odr))
+        for piece in _serialized(odr, counts=counts):
+            digest.update(piece)
+            out.write(piece)
+    return WrittenOpenDrive(digest.hexdigest(), None if counts.unreadable else counts.as_dict())
 
 
-def _serialized(odr: OpenDriveMap, as_text: bool = True) -> Iterator[bytes]:
+class _WriterCounts(ElementCounts):
+    """``ElementCounts`` of the document as ``_serialized`` makes it: an item built as a tree is walked; a road
+    or junction written as text is counted from the model it was written of (its own element, its signals and
+    objects) and the verbatim fragments in it (``_Fragment`` lines). The text path writes no other element
+    that is counted (``_model_name``). ``unreadable``: a counted road in a fragment has a @length that is no
+    number (the writer writes it as it is: the counts are left to the pass over the file, which fails on it)."""
+
+    __slots__ = ("unreadable",)
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.unreadable = False
+
+    def add_tree(self, element) -> None:
+        try:
+            super().add_tree(element)
+        except ValueError:
+            self.unreadable = True
+
+    def add_text(self, item, lines: list[str]) -> None:
+        for line in lines:
+            if type(line) is _Fragment:  # ended before the item that holds it
+                self.add_tree(etree.fromstring(line.lstrip().encode("utf-8"), safe_parser()))
+        if isinstance(item, Road):
+            self.signals += len(item.signals)
+            self.objects += len(item.objects)
+            self.add_road(float(item.length))  # what float() of the written @length gives: repr round-trips
+        else:  # a junction, a child of the document's root
+            self.junctions += 1
+
+
+def _serialized(odr: OpenDriveMap, as_text: bool = True, counts: _WriterCounts | None = None) -> Iterator[bytes]:
     """The document as pieces, each top-level element built, indented as in the whole tree and freed in turn.
-    ``as_text=False`` builds every item as an lxml tree (what the text path must equal, byte for byte)."""
+    ``as_text=False`` builds every item as an lxml tree (what the text path must equal, byte for byte).
+    ``counts``: what the document holds is counted into it as it is made."""
     yield b"<?xml version='1.0' encoding='UTF-8'?>\n<OpenDRIVE>\n"
-    for item in _top_level(odr, as_text):
+    for item in _top_level(odr, as_text, counts):
         if isinstance(item, str):
             yield item.encode("utf-8")
             continue
+        if counts is not None:
+            counts.add_tree(item)
         for element in item:
             etree.indent(element, space="    ", level=1)
             yield b"    " + etree.tostring(element, encoding="UTF-8", with_tail=False) + b"\n"
     yield b"</OpenDRIVE>\n"
 
 
-def _top_level(odr: OpenDriveMap, as_text: bool) -> Iterator[etree._Element | str]:
+def _top_level(odr: OpenDriveMap, as_text: bool, counts: _WriterCounts | None = None
+               ) -> Iterator[etree._Element | str]:
     """Per top-level item: its text (roads and junctions, see the module docstring), or a stand-in root holding
     that item's element(s) only."""
     def holder():
@@ -90,7 +144,7 @@ def _top_level(odr: OpenDriveMap, as_text: bool) -> Iterator[etree._Element | st
     _header(root, odr.header)
     yield root
     for road in odr.roads:
-        text = _text_or_none(_road_text, road) if as_text else None
+        text = _text_or_none(_road_text, road, counts) if as_text else None
         if text is not None:
             yield text
             continue
@@ -105,7 +159,7 @@ def _top_level(odr: OpenDriveMap, as_text: bool) -> Iterator[etree._Element | st
         _append_verbatim(element, controller.extra_xml)
         yield root
     for junction in odr.junctions:
-        text = _text_or_none(_junction_text, junction) if as_text else None
+        text = _text_or_none(_junction_text, junction, counts) if as_text else None
         if text is not None:
             yield text
             continue
@@ -272,11 +326,21 @@ class _NotText(Exception):
     """Something the text path does not spell as lxml would: the item is built as a tree instead."""
 
 
-def _text_or_none(make, item) -> str | None:
+def _text_or_none(make, item, counts: _WriterCounts | None = None) -> str | None:
+    """``make(item)``'s lines joined (counted into ``counts``), or None when the item must be built as a tree."""
     try:
-        return make(item)
+        lines = make(item)
     except _NotText:
         return None
+    if counts is not None:
+        counts.add_text(item, lines)
+    return "\n".join(lines)
+
+
+class _Fragment(str):
+    """A line of text that is a verbatim fragment (``_verbatim_lines``): the writer's counts look into it."""
+
+    __slots__ = ()
 
 
 _PAD = tuple("    " * depth for depth in range(64))
@@ -294,6 +358,14 @@ def _name(key) -> str:
         raise _NotText
     _plain_names.add(key)
     return key
+
+
+def _model_name(key) -> str:
+    """A tag the model holds (a lane record's, an outline corner's), as ``_name`` spells it; one the writer's
+    counts look for (a "signal" record, were there one) is left to the tree path, whose counts see it."""
+    if key in COUNTED_NAMES:
+        raise _NotText
+    return _name(key)
 
 
 @lru_cache(maxsize=4096)
@@ -339,7 +411,7 @@ def _verbatim_lines(out: list, depth: int, fragments) -> None:
             raise _NotText
         element = etree.fromstring(fragment, safe_parser())
         etree.indent(element, space="    ", level=depth)
-        out.append(_PAD[depth] + etree.tostring(element, encoding="UTF-8", with_tail=False).decode("utf-8"))
+        out.append(_Fragment(_PAD[depth] + etree.tostring(element, encoding="UTF-8", with_tail=False).decode("utf-8")))
 
 
 def _cubic_lines(out: list, depth: int, tag: str, profile: CubicProfile, s_name: str = "s",
@@ -400,8 +472,8 @@ def _link_lines(out: list, depth: int, tag: str, link) -> None:
             "contactPoint": link.contact_point}) + "/>")
 
 
-def _road_text(road) -> str:
-    """``_road``'s element as text: its lines at depth 1, as the document holds it."""
+def _road_text(road) -> list[str]:
+    """``_road``'s element as text: its lines at depth 1, as the document holds it (joined by newlines)."""
     out: list[str] = []
     extra = road.extra_xml
     children: list[str] = []
@@ -461,7 +533,7 @@ def _road_text(road) -> str:
     _element(out, 1, "road", _attributes(road.attrib, {
         "id": road.id, "length": float(road.length), "junction": road.junction, "name": road.name}), children)
     out.append("")
-    return "\n".join(out)
+    return out
 
 
 def _lane_section_lines(out: list, depth: int, section) -> None:
@@ -510,7 +582,7 @@ def _lane_lines(out: list, depth: int, lane, section_s0: float) -> None:
     for record in lane.records:
         fragments: list[str] = []
         _verbatim_lines(fragments, depth + 2, record.extra_xml)
-        _element(children, depth + 1, _name(record.tag), _attributes(record.attrib, {
+        _element(children, depth + 1, _model_name(record.tag), _attributes(record.attrib, {
             "sOffset": float(record.s0 - section_s0)}), fragments)
     for height in lane.heights:
         children.append(f"{inner}<height" + _attributes(None, {
@@ -525,15 +597,15 @@ def _road_object_lines(out: list, depth: int, o) -> None:
     inner = _PAD[depth + 1]
     children = [f"{inner}<repeat" + _attributes(repeat.attrib, {}) + "/>" for repeat in o.repeats]
     for outline in o.outlines:
-        corners = [f"{_PAD[depth + 2]}<{_name(corner.kind)}" + _attributes(corner.attrib, {}) + "/>"
+        corners = [f"{_PAD[depth + 2]}<{_model_name(corner.kind)}" + _attributes(corner.attrib, {}) + "/>"
                    for corner in outline.corners]
         _element(children, depth + 1, "outline", _attributes(outline.attrib, {}), corners)
     _verbatim_lines(children, depth + 1, o.extra_xml)
     _element(out, depth, "object", _attributes(o.attrib, {"id": o.id, "s": float(o.s), "t": float(o.t)}), children)
 
 
-def _junction_text(junction) -> str:
-    """``_junction``'s element as text, at depth 1."""
+def _junction_text(junction) -> list[str]:
+    """``_junction``'s element as text, at depth 1 (its lines, to be joined by newlines)."""
     children: list[str] = []
     for connection in junction.connections:
         inside = [f"{_PAD[3]}<laneLink" + _attributes(None, {"from": link.from_lane, "to": link.to_lane}) + "/>"
@@ -549,4 +621,4 @@ def _junction_text(junction) -> str:
     out: list[str] = []
     _element(out, 1, "junction", _attributes(junction.attrib, {"id": junction.id}), children)
     out.append("")
-    return "\n".join(out)
+    return out

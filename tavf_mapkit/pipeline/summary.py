@@ -9,32 +9,32 @@ from tavf_mapkit.pipeline.manifest import OSM_ATTRIBUTION
 
 
 def opendrive_counts(xodr: Path) -> dict:
-    """Roads, junctions, signals, objects and total road length of an OpenDRIVE file (one streaming pass).
-
-    Tags are matched in any namespace: some writers put OpenDRIVE in a default namespace (the A9 HD map)."""
-    from lxml import etree
-
+    """Roads, junctions, signals, objects and total road length of an OpenDRIVE file (one streaming pass;
+    ``opendrive.summary.ElementCounts`` says what is counted)."""
+    from tavf_mapkit.opendrive.summary import COUNTED_TAGS, ElementCounts
     from tavf_mapkit.xmlsafe import iterparse_safe, read_xml_source, release_if_top_level
 
-    counts = {"roads": 0, "junctions": 0, "signals": 0, "objects": 0, "road_length_km": 0.0}
-    length = 0.0
-    context = iterparse_safe(read_xml_source(xodr), events=("end",),
-                             tag=("{*}road", "{*}junction", "{*}signal", "{*}object"))
-    for _event, element in context:
-        tag = etree.QName(element).localname
-        parent = element.getparent()
-        if tag == "road":
-            counts["roads"] += 1
-            length += float(element.get("length", 0.0) or 0.0)
-        elif tag == "junction" and parent is not None and etree.QName(parent).localname == "OpenDRIVE":
-            counts["junctions"] += 1
-        elif tag == "signal":
-            counts["signals"] += 1
-        elif tag == "object":
-            counts["objects"] += 1
+    counts = ElementCounts()
+    for _event, element in iterparse_safe(read_xml_source(xodr), events=("end",), tag=COUNTED_TAGS):
+        counts.ended(element)
         release_if_top_level(element)  # a road or junction done: it goes (a region's file is GBs)
-    counts["road_length_km"] = round(length / 1000, 3)
-    return counts
+    return counts.as_dict()
+
+
+def written_counts(context) -> dict | None:
+    """``opendrive_counts`` of the build's NAME.xodr as its writer counted them (artifact ``xodr_counts``, made with
+    it by the opendrive stage), when they are of that file; else None."""
+    path = context.artifacts.get("xodr_counts")
+    if path is None:
+        return None
+    xodr = context.artifacts["xodr"]
+    try:
+        record = json.loads(Path(path).read_text(encoding="utf-8"))
+        if record["file"] == xodr.name and record["bytes"] == xodr.stat().st_size:
+            return dict(record["counts"])
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    return None
 
 
 def build_report(context) -> dict:
@@ -67,7 +67,7 @@ def build_report(context) -> dict:
             report["driving_side"] = facts["driving_side"]
     if "xodr" in context.artifacts:
         xodr = context.artifacts["xodr"]
-        report["opendrive"] = {"file": xodr.name, **opendrive_counts(xodr)}
+        report["opendrive"] = {"file": xodr.name, **(written_counts(context) or opendrive_counts(xodr))}
     tiles = tile_report(context.folder)
     if tiles:
         report["tiles"] = tiles

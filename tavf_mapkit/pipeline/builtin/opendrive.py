@@ -26,14 +26,16 @@ from tavf_mapkit.pipeline.stages import Stage, StageOutput, register_stage
 
 @register_stage("opendrive")
 class OpenDriveStage(Stage):
-    makes = ("xodr", "odrmap", "opendrive_report")
+    makes = ("xodr", "odrmap", "opendrive_report", "xodr_counts")
     inputs = ("xodr",)
     # 2: an OpenDRIVE input becomes the build's NAME.xodr; 3: netconvert's output repaired; 4: @length set to the
     # arc length, [opendrive] repair; 5: connecting roads meet their lanes, one <controller> per id; 6: curves as
     # arcs ([opendrive] curves); 7: NAME.xodr is always this stage's (netconvert's file stays in netconvert/);
     # 8: NAME.odrmap, the snapshot of NAME.xodr as read (opendrive/snapshot.py) for the stages and twins after it;
-    # 9: a paramPoly3's arc length exact across a near-cusp (its @length repaired right, its arcs fitted)
-    version = "9"
+    # 9: a paramPoly3's arc length exact across a near-cusp (its @length repaired right, its arcs fitted);
+    # 10: NAME.odrmap keyed by the file's sha256 taken as it is written (and the snapshot code's new key),
+    # report/xodr_counts.json (what the report counts in NAME.xodr, counted as it is written)
+    version = "10"
     description = "read and check the OpenDRIVE (counts, bounds, georeference plausibility)"
 
     def options(self, context: BuildContext) -> dict:
@@ -46,12 +48,12 @@ class OpenDriveStage(Stage):
     def run(self, context: BuildContext) -> StageOutput:
         from tavf_mapkit.opendrive.summary import summarise
 
-        files, more_facts = {}, {}
+        files, more_facts, written = {}, {}, None
         if context.input_kind == "opendrive":
             odr, more_facts = _import_input(context)
             files["xodr"] = f"{context.name}.xodr"
         else:
-            odr, repaired_facts = _repaired_netconvert_output(context)
+            odr, repaired_facts, written = _repaired_netconvert_output(context)
             files["xodr"] = f"{context.name}.xodr"
             more_facts["repairs"] = repaired_facts
             if not repair_enabled(context):
@@ -74,14 +76,30 @@ class OpenDriveStage(Stage):
             "bounds_wgs84": {k: round(v, 7) for k, v in (geo.get("bounds_wgs84") or {}).items()},
             **more_facts,
         }
-        files["odrmap"] = _snapshot(context, files["xodr"])
+        if written is not None and written.counts is not None:
+            files["xodr_counts"] = _write_counts(context, files["xodr"], written)
+        files["odrmap"] = _snapshot(context, files["xodr"], written.sha256 if written is not None else None)
         return StageOutput(files={**files, "opendrive_report": "report/opendrive.json"}, facts=facts)
 
 
-def _snapshot(context: BuildContext, xodr_name: str) -> str:
+#: what the report counts in NAME.xodr (pipeline/summary.py), as the writer counted it
+COUNTS_FILE = "report/xodr_counts.json"
+
+
+def _write_counts(context: BuildContext, xodr_name: str, written) -> str:
+    """report/xodr_counts.json: the counts of the report's "opendrive" part, taken as NAME.xodr was written, with
+    the file's size and sha256 -- the report stage need not parse a region's 500 MB again for them."""
+    xodr = context.output_path(xodr_name)
+    record = {"file": xodr_name, "bytes": xodr.stat().st_size, "sha256": written.sha256, "counts": written.counts}
+    context.output_path(COUNTS_FILE).write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
+    return COUNTS_FILE
+
+
+def _snapshot(context: BuildContext, xodr_name: str, sha256: str | None = None) -> str:
     """Read NAME.xodr back as every later reader would and save that as NAME.odrmap: the stages after this one
     and the twin load a region's map from it in a tenth of the time (opendrive/snapshot.py). The map read is kept
-    for the mesh stage when it is small (stage_map.py)."""
+    for the mesh stage when it is small (stage_map.py). ``sha256``: the file's, when it was taken as it was
+    written (else the file is hashed)."""
     from tavf_mapkit.memory import return_freed_memory
     from tavf_mapkit.opendrive.snapshot import SUFFIX, snapshot_file
     from tavf_mapkit.pipeline.builtin.stage_map import keep_map
@@ -89,7 +107,7 @@ def _snapshot(context: BuildContext, xodr_name: str) -> str:
     return_freed_memory()
     xodr = context.output_path(xodr_name)
     name = f"{context.name}{SUFFIX}"
-    keep_map(context, xodr, snapshot_file(xodr, context.output_path(name)))
+    keep_map(context, xodr, snapshot_file(xodr, context.output_path(name), sha256=sha256))
     return name
 
 
@@ -137,7 +155,8 @@ def _repair_steps(context: BuildContext) -> list:
 
 def _repaired_netconvert_output(context: BuildContext):
     """(netconvert's OpenDRIVE with its impossible geometry repaired, written as NAME.xodr -- netconvert's file byte
-    for byte when nothing was; the repairs' facts, ``repair_facts``)."""
+    for byte when nothing was; the repairs' facts, ``repair_facts``; what the writer knows of the file it wrote,
+    ``writer.WrittenOpenDrive``, or None when the file is netconvert's)."""
     from tavf_mapkit.errors import StageError
     from tavf_mapkit.memory import return_freed_memory
     from tavf_mapkit.opendrive.repair import DROPPED_ROAD
@@ -156,7 +175,7 @@ def _repaired_netconvert_output(context: BuildContext):
     if not repairs:  # every step returned the map it was given
         if raw.resolve() != xodr.resolve():
             shutil.copyfile(raw, xodr)
-        return repaired, {}
+        return repaired, {}, None
     return_freed_memory()
     dropped = [repair for repair in repairs if repair.action == DROPPED_ROAD]
     if len(dropped) > max(MAX_DROPPED_MIN, MAX_DROPPED_SHARE * roads):
@@ -178,8 +197,8 @@ def _repaired_netconvert_output(context: BuildContext):
     # netconvert stamps its output with the time (header @date): without the stamp the repaired file depends on
     # the input only, so the stages after this one are reused when netconvert had to run again
     repaired = repaired.with_header(replace(repaired.header, date=None))
-    write_opendrive(repaired, xodr)
-    return repaired, facts
+    written = write_opendrive(repaired, xodr)
+    return repaired, facts, written
 
 
 def _network_extent(context: BuildContext):

@@ -12,7 +12,7 @@ from tavf_mapkit.pipeline.stages import Stage, StageOutput, register_stage
 class ReportStage(Stage):
     makes = ("report", "report_text")
     inputs = ()
-    optional_inputs = ("source", "net", "xodr")
+    optional_inputs = ("source", "net", "xodr", "xodr_counts")
     version = "1"
     description = "one-screen summary and report/summary.json"
 
