@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import zipfile
 from pathlib import Path
 
@@ -214,7 +215,7 @@ class _WorldWriter:
     def put(self, index, files: list[tuple[str, bytes, dict]]) -> None:
         """Files of a tile's bodies (``body_files``) written, their records kept for world.json."""
         for relative, data, body in files:
-            (self.staging / relative).write_bytes(data)
+            _write_new_file(f"{self.staging}/{relative}", data)
             self.bodies.append(body)
             entry = self.tiles.setdefault(body["tile"], {
                 "name": body["tile"], "index": list(index), "bounds": self.grid.relative_bounds(index),
@@ -243,3 +244,15 @@ class _WorldWriter:
 
     def abandon(self) -> None:
         self.folder.discard()
+
+
+def _write_new_file(path: str, data: bytes) -> None:
+    """``Path(path).write_bytes(data)`` with os calls: the pathlib and io layers were a third of writing a
+    region's tens of thousands of small OBJ files."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | getattr(os, "O_BINARY", 0), 0o666)
+    try:
+        view = memoryview(data)
+        while view:
+            view = view[os.write(fd, view):]
+    finally:
+        os.close(fd)

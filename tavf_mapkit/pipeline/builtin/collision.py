@@ -96,11 +96,9 @@ class _MeshStageOutput:
         """mesh/labelled, when it was made at ``eps`` on tiles of ``tile`` metres, with solids, from the same
         buildings input, and every file it lists is there and readable (``read`` off: there, as files; the
         caller reads them and makes the world anew if one is unreadable)."""
-        import zipfile
-
-        import numpy as np
-
         from tavf_mapkit.mesh.tiled import read_labelled_index
+        from tavf_mapkit.npzfile import read_npz
+        from tavf_mapkit.world.build import TILE_READ_ERRORS
 
         try:
             saved = self.record["labelled"]
@@ -117,9 +115,7 @@ class _MeshStageOutput:
                         return None
                     continue
                 # a damaged file is made again, not trusted: BadZipFile (zip), EOFError / ValueError (arrays)
-                with np.load(folder / f"{name}.npz", allow_pickle=False) as data:
-                    for key in data.files:
-                        data[key]
+                read_npz(folder / f"{name}.npz")
             return folder
-        except (OSError, ValueError, KeyError, TypeError, IndexError, EOFError, zipfile.BadZipFile):
+        except TILE_READ_ERRORS:
             return None
