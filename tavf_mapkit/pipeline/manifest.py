@@ -20,29 +20,59 @@ OSM_ATTRIBUTION = "(c) OpenStreetMap contributors, ODbL 1.0"
 PACKAGES = ("tavf-mapkit", "osmium", "eclipse-sumo", "sumolib", "lxml", "pyproj", "shapely", "numpy", "click")
 
 
-def file_sha256(path: str | Path) -> str:
-    digest = hashlib.sha256()
+#: files up to this size are hashed from one read (a region's mesh folder holds ~100k small tiles, where
+#: ``file_digest``'s buffer per file costs more than the hashing); larger ones in blocks, in bounded memory
+WHOLE_READ_BYTES = 16 << 20
+
+
+def file_sha256(path: str | Path, size: int | None = None) -> str:
+    """sha256 (hex) of a file; ``size``: its size, if known (saves a ``stat``)."""
     with open(path, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
+        if (size if size is not None else os.fstat(handle.fileno()).st_size) <= WHOLE_READ_BYTES:
+            return hashlib.sha256(handle.read()).hexdigest()
+        return hashlib.file_digest(handle, "sha256").hexdigest()
+
+
+def _files_below(folder: Path) -> list[tuple[tuple[str, ...], str, int]]:
+    """(relative parts, path, bytes) of every file below ``folder``, in the order of sorted ``Path`` objects (by
+    parts). One ``os.scandir`` walk: a mesh folder of a region holds ~100k files, where ``Path.rglob`` and a
+    ``stat`` per path cost more than hashing them."""
+    found = []
+    pending = [((), os.fspath(folder))]
+    while pending:
+        parts, directory = pending.pop()
+        with os.scandir(directory) as entries:
+            for entry in entries:
+                if entry.is_dir(follow_symlinks=False):
+                    pending.append(((*parts, entry.name), entry.path))
+                elif entry.is_file():
+                    found.append(((*parts, entry.name), entry.path, entry.stat().st_size))
+    found.sort(key=lambda item: item[0])
+    return found
+
+
+def path_sha256_and_bytes(path: str | Path) -> tuple[str, int]:
+    """(sha256, bytes) of a file, or of a folder: the hash of its sorted (relative path, file hash) list and the
+    sum of its files' sizes, from one walk."""
+    path = Path(path)
+    if not path.is_dir():
+        return file_sha256(path), path.stat().st_size
+    digest, total = hashlib.sha256(), 0
+    for parts, item, size in _files_below(path):
+        digest.update(f"{'/'.join(parts)}\0{file_sha256(item, size)}\n".encode())
+        total += size
+    return digest.hexdigest(), total
 
 
 def path_sha256(path: str | Path) -> str:
     """sha256 of a file, or of a folder as the hash of its sorted (relative path, file hash) list."""
-    path = Path(path)
-    if path.is_dir():
-        digest = hashlib.sha256()
-        for item in sorted(p for p in path.rglob("*") if p.is_file()):
-            digest.update(f"{item.relative_to(path).as_posix()}\0{file_sha256(item)}\n".encode())
-        return digest.hexdigest()
-    return file_sha256(path)
+    return path_sha256_and_bytes(path)[0]
 
 
 def path_bytes(path: str | Path) -> int:
     path = Path(path)
     if path.is_dir():
-        return sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
+        return sum(size for _, _, size in _files_below(path))
     return path.stat().st_size
 
 

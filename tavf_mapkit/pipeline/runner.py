@@ -32,7 +32,7 @@ from tavf_mapkit.pipeline.manifest import (
     file_sha256,
     fingerprint,
     path_bytes,
-    path_sha256,
+    path_sha256_and_bytes,
     read_manifest,
     stage_record,
     tool_versions,
@@ -212,7 +212,8 @@ def _run_stage(stage_name: str, context: BuildContext, hashes: dict, previous: d
                 path = context.folder / relative
                 if not path.exists():
                     raise StageError(f"stage {stage_name} reported {relative} but did not write it")
-                outputs[artifact] = {"path": relative, "sha256": path_sha256(path), "bytes": path_bytes(path)}
+                sha256, size = path_sha256_and_bytes(path)
+                outputs[artifact] = {"path": relative, "sha256": sha256, "bytes": size}
     except MapkitError as error:
         _point_at_user_files(error, context)
         _keep_failure_log(error, stage_name, context, target)
