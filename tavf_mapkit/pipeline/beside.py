@@ -24,6 +24,7 @@ import traceback
 from pathlib import Path
 
 from tavf_mapkit.errors import MapkitError, StageError
+from tavf_mapkit.pipeline.manifest import path_bytes
 from tavf_mapkit.progress import silent
 
 #: a stage starts beside others only when its input files are at least this large in all: below it the child's
@@ -70,10 +71,7 @@ def may_start(stages: list, position: int, candidate: int, context) -> bool:
 
 
 def _bytes(path: Path) -> int:
-    path = Path(path)
-    if path.is_dir():
-        return sum(child.stat().st_size for child in path.rglob("*") if child.is_file())
-    return path.stat().st_size if path.exists() else 0
+    return path_bytes(path) if Path(path).exists() else 0
 
 
 def _no_notes(message: str) -> None:
