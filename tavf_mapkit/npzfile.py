@@ -83,7 +83,7 @@ def _read_stored(data: bytes) -> dict[str, np.ndarray]:
             raise EOFError
         if zlib.crc32(member) != crc:
             raise zipfile.BadZipFile(f"Bad CRC-32 for file {name!r}")
-        key = name.decode("cp437" if not flags & 0x800 else "utf-8")
+        key = name.decode("utf-8" if flags & 0x800 else "ascii" if name.isascii() else "cp437")  # cp437: zipfile's default
         if not key.endswith(".npy") or not member.startswith(_NPY_MAGIC):
             raise _Unusual  # np.load gives such members as bytes or by another name
         arrays[key[:-4]] = _npy_array(member)

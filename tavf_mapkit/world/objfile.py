@@ -13,6 +13,7 @@ def obj_text(name: str, vertices: np.ndarray, faces: np.ndarray, comment: str = 
     """OBJ text of a triangle mesh (vertices already recentred)."""
     vertices = np.round(np.asarray(vertices, dtype=np.float64), 4) + 0.0  # + 0.0 turns -0.0 into 0.0
     header = f"# {comment}\n" if comment else ""
+    # tolist: Python numbers format a third faster than numpy scalars, to the same text
     return (f"{header}o {name}\n"
-            + ("v %.4f %.4f %.4f\n" * len(vertices)) % tuple(vertices.ravel())
-            + ("f %d %d %d\n" * len(faces)) % tuple((np.asarray(faces, dtype=np.int64) + 1).ravel()))
+            + ("v %.4f %.4f %.4f\n" * len(vertices)) % tuple(vertices.ravel().tolist())
+            + ("f %d %d %d\n" * len(faces)) % tuple((np.asarray(faces, dtype=np.int64) + 1).ravel().tolist()))
