@@ -76,6 +76,7 @@ def build(source: Path, folder: Path, timeout: float, memory_mib: float) -> dict
         return row
     manifest = json.loads((folder / "manifest.json").read_text())
     row["stages"] = {stage["name"]: stage.get("seconds") for stage in manifest["stages"]}
+    row["beside"] = [stage["name"] for stage in manifest["stages"] if stage.get("beside")]
     row["netconvert_s"] = row["stages"].get("netconvert")
     xodr = next(folder.glob("*.xodr"))
     row["xodr"] = str(xodr)
@@ -97,8 +98,16 @@ def ratio(a, b) -> str:
     return f"{a / b:.1f}x" if a and b else "-"
 
 
+def stage_seconds(row: dict) -> str:
+    """The seconds of the stages after netconvert, e.g. "opendrive 120 / mesh 258 / check 73 (beside) / ..."."""
+    shown = [(name, seconds) for name, seconds in row["stages"].items()
+             if name not in ("extract", "netconvert") and seconds is not None]
+    return " / ".join(f"{name} {seconds:.1f}" + (" (beside)" if name in row.get("beside", ()) else "")
+                      for name, seconds in shown) or "-"
+
+
 def print_table(rows: list[dict]) -> None:
-    head = ("input", "roads", "netconvert s", "build s", "build/netc", "build MiB", "mesh s", "our load s",
+    head = ("input", "roads", "netconvert s", "build s", "build/netc", "build MiB", "stages s", "our load s",
             "C++ load s", "load ratio", "our load MiB", "C++ MiB", "MiB ratio")
     print(" | ".join(head))
     print(" | ".join("---" for _ in head))
@@ -109,7 +118,7 @@ def print_table(rows: list[dict]) -> None:
         ours, cpp = row["our_load"], row.get("cpp_load") or {}
         print(" | ".join([
             row["name"], str(row["roads"]), f"{row['netconvert_s']:.1f}", f"{row['wall_s']:.1f}",
-            ratio(row["wall_s"], row["netconvert_s"]), f"{row['peak_mib']:.0f}", f"{row['stages'].get('mesh', 0):.1f}",
+            ratio(row["wall_s"], row["netconvert_s"]), f"{row['peak_mib']:.0f}", stage_seconds(row),
             f"{ours['seconds']:.2f}", f"{cpp.get('seconds', float('nan')):.2f}", ratio(ours["seconds"], cpp.get("seconds")),
             f"{ours['peak_mib']:.0f}", f"{cpp.get('peak_mib', float('nan')):.0f}",
             ratio(ours["peak_mib"], cpp.get("peak_mib")),
