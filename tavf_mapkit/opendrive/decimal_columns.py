@@ -39,6 +39,9 @@ _SHIFT_4, _SHIFT_8, _SHIFT_16, _SHIFT_32 = _U(4), _U(8), _U(16), _U(32)
 _ASCII_ZEROS = _U(0x3030303030303030)
 _FILL = np.array([(1 << (8 * k)) - 1 for k in range(9)], dtype=np.uint64)  # the lowest k bytes of a word
 _WORD_STARTS = np.array([0, 8, 16], dtype=np.int64)
+# the three words' masks of the lowest k bytes of 24 (k = 0 .. 24): one row taken per number (a 2-D fancy index
+# of _FILL costs twenty times as much)
+_FILL_ROWS = _FILL[np.minimum(np.maximum(np.arange(_WIDTH + 1)[:, None] - _WORD_STARTS, 0), 8)]
 _1E8, _1E16 = np.uint64(10**8), np.uint64(10**16)
 _LARGEST_TOP_GROUP = np.uint64(1843)  # G0 * 10**16 + (10**16 - 1) < 2**64 up to this top group
 
@@ -61,7 +64,7 @@ def decimals_at(buffer: np.ndarray, ends: np.ndarray, lengths: np.ndarray) -> tu
     signed = (first == _MINUS) | (first == _PLUS)
     # the bytes before the number (and its sign) become "0"s, which change nothing; a word at a time
     before = _WIDTH - lengths + signed
-    fill = _FILL[np.minimum(np.maximum(before[:, None] - _WORD_STARTS, 0), 8)]
+    fill = _FILL_ROWS.take(np.clip(before, 0, _WIDTH), axis=0)  # (before < 0: too long for the fast path)
     words = (rows.view(np.uint64) & ~fill) | (fill & _ASCII_ZEROS)
     dot_words = (words.view(np.uint8) == _DOT).view(np.uint64)  # a byte 1 where a dot is
     dot_count = ((dot_words[:, 0] + dot_words[:, 1] + dot_words[:, 2]) * _U(0x0101010101010101)) >> _U(56)
@@ -89,7 +92,7 @@ def decimals_at(buffer: np.ndarray, ends: np.ndarray, lengths: np.ndarray) -> tu
     mantissa = np.where(one_dot & (fraction_digits <= _LONGEST_SPLIT),
                         spread // _POW10_U64[split + 1] * scale + spread % scale, spread)
     fast = plain & (mantissa <= _CLINGER_MANTISSA) & (fraction_digits <= _CLINGER_EXPONENT)
-    out[fast] = mantissa[fast] / _POW10_DOUBLE[fraction_digits[fast]]
+    out = np.where(fast, mantissa / _POW10_DOUBLE[fraction_digits], np.nan)  # fast nearly everywhere: no gathers
     read = fast
     if _EXTENDED:
         wide = np.flatnonzero(plain & ~fast & (fraction_digits <= _EXTENDED_EXPONENT))

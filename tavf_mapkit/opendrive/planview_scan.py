@@ -23,6 +23,13 @@ import numpy as np
 
 from tavf_mapkit.opendrive.decimal_columns import decimals_at
 from tavf_mapkit.opendrive.geometry import NARROW_COLUMNS, GeometryKind
+from tavf_mapkit.opendrive.lanes_scan import (
+    LANES_CLOSE,
+    LANES_OPEN,
+    LanesLayout,
+    lanes_layout,
+    lanes_template,
+)
 
 CHUNK_BYTES = 1 << 20  # read this much at a time: array operations over hundreds of planViews each
 _OPEN, _CLOSE = b"<planView>", b"</planView>"
@@ -91,6 +98,10 @@ class PlanViewScan:
         self._last_byte = b""  # the last byte handed on
         self._ended = False
         self._codes = _TokenCodes()
+        # (line of the <lanes> tag, content, (template, values), its LanesLayout) of each emptied one
+        self.lanes_blocks: deque = deque()
+        self._lanes_seen: set[int] = set()  # hashes of the lanes templates seen (a collision only empties one more)
+        self._lanes_layouts: dict[bytes, LanesLayout | None] = {}
 
     def read(self, size: int = -1) -> bytes:
         while len(self._ready) - self._ready_at < max(size, 1) and not self._ended:
@@ -115,6 +126,19 @@ class PlanViewScan:
             raise PlanViewMismatch
         return rows, lines, in_order
 
+    def take_lanes(self, line: int, text: str | None):
+        """(content, (template, values), layout, line of the tag in the stream) of the emptied <lanes> whose
+        element lxml puts on
+        this line with this text, or None; raises PlanViewMismatch as ``take`` does."""
+        blocks = self.lanes_blocks
+        if not blocks or blocks[0][0] > line:
+            return None
+        tag_line, content, template, layout = blocks.popleft()
+        newlines = layout.newlines
+        if (tag_line if tag_line < _BIG_LINE else tag_line + newlines) != line or text != "\n" * newlines:
+            raise PlanViewMismatch
+        return content, template, layout, tag_line
+
     def _scan_more(self) -> None:
         more = self.stream.read(CHUNK_BYTES)
         data = self._held + more
@@ -136,14 +160,24 @@ class PlanViewScan:
                 break
             spans.append((start, close))
             position = close + len(_CLOSE)
-        self._emit(data, cut, spans)
+        cut = self._lanes_cut(data, cut)
+        self._emit(data, cut, [span for span in spans if span[1] < cut])
+
+    def _lanes_cut(self, data: bytes, cut: int) -> int:
+        """``cut``, or the start of a <lanes> before it that may end in the next chunk (held back with it)."""
+        start = data.rfind(LANES_OPEN, 0, cut + len(LANES_OPEN) - 1)  # its tag may be cut in two, too
+        if start < 0 or start >= cut or data.find(LANES_CLOSE, start, cut) >= 0 or cut - start >= _LONGEST_HELD:
+            return cut
+        return start
 
     def _emit(self, data: bytes, cut: int, spans: list) -> None:
         """Hand on data[:cut] with the plain planViews among ``spans`` emptied; keep the rest for later."""
-        emptied = self._convert(data, spans)
+        emptied = [(start + len(_OPEN), close, newlines) for start, close, newlines in self._convert(data, spans)]
+        lanes = self._empty_lanes(data, cut)
+        if lanes:
+            emptied = sorted(emptied + lanes)
         pieces, position = [], 0
         for start, close, newlines in emptied:
-            start += len(_OPEN)
             pieces.append(data[position:start])
             pieces.append(b"\n" * newlines)
             position = close
@@ -154,6 +188,38 @@ class PlanViewScan:
         if cut:
             self._last_byte = data[cut - 1:cut]
         self._held = data[cut:]
+
+    def _empty_lanes(self, data: bytes, cut: int) -> list:
+        """Queue the <lanes> blocks in data[:cut] in the plain form whose content was seen before
+        (lanes_scan.py); the (content start, end, newlines) of those to empty."""
+        emptied, seen, layouts = [], self._lanes_seen, self._lanes_layouts
+        position, line, lines_at = 0, self._held_line, 0
+        while True:
+            start = data.find(LANES_OPEN, position, cut)
+            if start < 0:
+                return emptied
+            content_start = start + len(LANES_OPEN)
+            close = data.find(LANES_CLOSE, content_start, cut)
+            if close < 0:
+                return emptied
+            position = close + len(LANES_CLOSE)
+            content = data[content_start:close]
+            template = lanes_template(content)
+            if template is None:
+                continue
+            key = hash(template[0])
+            if key not in seen:  # a first: the parser reads it (a region's templates mostly repeat; a city's too)
+                seen.add(key)
+                continue
+            layout = layouts.get(template[0], False)
+            if layout is False:
+                layout = layouts[template[0]] = lanes_layout(content)
+            if layout is None or not layout.newlines or (data[start - 1:start] if start else self._last_byte) not in _SPACES:
+                continue  # (not after white space: it may be a first child, whose line would be its own child's)
+            line += data.count(b"\n", lines_at, start)
+            lines_at = start
+            self.lanes_blocks.append((line, content, template, layout))
+            emptied.append((content_start, close, layout.newlines))
 
     def _convert(self, data: bytes, spans: list) -> list:
         """Queue the rows of the plain planViews among ``spans``; the spans of those queued."""

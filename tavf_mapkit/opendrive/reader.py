@@ -6,6 +6,7 @@ NaN, infinity and negative lengths are reported with file, line and road id.
 
 from __future__ import annotations
 
+from itertools import pairwise
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +20,7 @@ from tavf_mapkit.opendrive.geometry import NARROW_COLUMNS, GeometryKind, join_ro
 from tavf_mapkit.opendrive.header import Header, Offset
 from tavf_mapkit.opendrive.junction import Connection, Controller, Junction, JunctionController, LaneLink
 from tavf_mapkit.opendrive.lane import Lane, LaneHeight, LaneRecord, RoadMark, RoadMarkLine
+from tavf_mapkit.opendrive.lanes_scan import BIG_LINE, LANES_CLOSE, LANES_OPEN, LanesLayout, lane_line
 from tavf_mapkit.opendrive.lanesection import LaneSection
 from tavf_mapkit.opendrive.network import OpenDriveMap
 from tavf_mapkit.opendrive.objects import (
@@ -33,7 +35,7 @@ from tavf_mapkit.opendrive.planview_scan import PlanViewMismatch, PlanViewScan
 from tavf_mapkit.opendrive.refline import ReferenceLine, RowPacker
 from tavf_mapkit.opendrive.road import Road, RoadLink, RoadType, ShapeRecord
 from tavf_mapkit.opendrive.units import speed_to_mps
-from tavf_mapkit.xmlsafe import XmlSource, iterparse_safe, prepare_xml_bytes, read_xml_source
+from tavf_mapkit.xmlsafe import XmlSource, iterparse_safe, prepare_xml_bytes, read_xml_source, safe_parser
 
 _GEOMETRY_TAGS = {
     "line": GeometryKind.LINE, "arc": GeometryKind.ARC, "spiral": GeometryKind.SPIRAL,
@@ -154,6 +156,7 @@ class _Reader:
         self.marks: dict[tuple, RoadMark] = {}  # identical plain road marks shared (road_mark)
         self.records: dict[tuple, LaneRecord] = {}  # identical plain lane records shared (lane_record)
         self.tuples: dict[tuple, tuple] = {}  # shared_tuple
+        self.lane_recipes: dict[bytes, tuple] = {}  # recipe_lanes
 
     # -- helpers ---------------------------------------------------------------------------------------------
     def word(self, element, name: str, default: str | None = None) -> str | None:
@@ -295,8 +298,8 @@ class _Reader:
                     extras.append(_verbatim(previous))
                 del parent[0]
         self.packer.flush()
-        if self.scan is not None and self.scan.blocks:
-            raise PlanViewMismatch  # an emptied planView no road read
+        if self.scan is not None and (self.scan.blocks or self.scan.lanes_blocks):
+            raise PlanViewMismatch  # an emptied planView or lanes no road read
         root = root if root is not None else self.source.root
         if root is None:
             raise InputError("empty document, expected <OpenDRIVE>", file=self.source.name)
@@ -387,9 +390,13 @@ class _Reader:
         lanes = child("lanes")
         sections: tuple[LaneSection, ...] = ()
         if lanes is not None:
-            lane_offset = self.profiles.profile([self.cubic(e) for e in self.children(lanes, "laneOffset")])
-            sections = self.lane_sections(lanes, length)
-            extra["lanes"] = self.unknown(lanes, {"laneOffset", "laneSection"})
+            taken = self.scan.take_lanes(lanes.sourceline, lanes.text) if self.scan and not len(lanes) else None
+            if taken is not None:  # emptied by the scan: made from the content's recipe (lanes_scan.py)
+                lane_offset, sections = self.recipe_lanes(*taken)
+            else:
+                lane_offset, sections = self.lanes(lanes)
+                extra["lanes"] = self.unknown(lanes, {"laneOffset", "laneSection"})
+            self.warn_zero_length(sections)
         if not sections:
             self.warn("road has no lane section", element)
         objects_element = child("objects")
@@ -542,7 +549,88 @@ class _Reader:
         return ReferenceLine.from_narrow(narrow, np.array(side_index, dtype=np.int64),
                                          np.array(side_params, dtype=float).reshape(-1, 9), lines, extra_xml)
 
-    def lane_sections(self, lanes_element, road_length: float) -> tuple[LaneSection, ...]:
+    def lanes(self, element) -> tuple:
+        """(lane offset profile, lane sections) of a <lanes>."""
+        return (self.profiles.profile([self.cubic(e) for e in self.children(element, "laneOffset")]),
+                self.lane_sections(element))
+
+    def recipe_lanes(self, content: bytes, template: tuple, layout: LanesLayout, tag_line: int) -> tuple:
+        """``lanes`` of an emptied <lanes> (lanes_scan.py): from its template's recipe, read once per template,
+        with this road's numbers and source lines. Its objects are those ``lanes`` makes: the lane sections,
+        the lanes and their tuples anew, the rest shared as ``lanes`` shares it (profiles, marks, records,
+        attributes, words)."""
+        key, values = template
+        recipe = self.lane_recipes.get(key)
+        if recipe is None:
+            recipe = self.lane_recipes[key] = self.lanes_recipe(content, layout)
+        try:
+            numbers = list(map(float, values))
+        except ValueError:  # e.g. "1e5e5" or "": the careful path names it or reads it as 0
+            raise PlanViewMismatch from None
+        total = sum(numbers)
+        if total - total != 0.0:  # NaN or infinity: the careful path's error names it
+            raise PlanViewMismatch
+        records = list(zip(*[iter(numbers)] * 5))  # (s, a, b, c, d) of each cubic record
+        profile = self.profiles.profile
+        offset_holes, section_recipes = recipe
+        line = tag_line + self.source.line_offset
+        big = tag_line + layout.newlines >= BIG_LINE  # past libxml2's 16-bit lines (lanes_scan.LanesLayout)
+        return profile([(0.0 + s, a, b, c, d) for s, a, b, c, d in map(records.__getitem__, offset_holes)]), tuple([
+            LaneSection(s0, tuple([
+                Lane(*head,
+                     profile([(s0 + s, a, b, c, d) for s, a, b, c, d in map(records.__getitem__, widths)], True),
+                     profile([(s0 + s, a, b, c, d) for s, a, b, c, d in map(records.__getitem__, borders)], True),
+                     *tail, lane_line(line, tag_line, lines) if big else line + lines[0], attrib)
+                for head, widths, borders, tail, lines, attrib in lanes]),
+                None, lane_line(line, tag_line, section_lines) if big else line + section_lines[0], section_attrib)
+            for s0, section_lines, section_attrib, lanes in section_recipes])
+
+    def lanes_recipe(self, content: bytes, layout: LanesLayout) -> tuple:
+        """(the lane offset's cubic records, (s0, lines, attributes, lanes) per section) of a plain lanes
+        content, a lane as (id .. successor, its widths' cubic records, its borders', heights .. records, lines,
+        attributes); a cubic record as its index among the template's (lanes_scan.lanes_template), lines as its
+        start tag's (LanesLayout.tag_lines, next_tag_lines). Read by ``lanes`` from the content as a fragment
+        with the start tags' indices in place of lines. Raises PlanViewMismatch where the content would not make such
+        objects (an error, a string or bytes the careful path makes for each road): the careful path reads the
+        file."""
+        try:
+            root = etree.fromstring(LANES_OPEN + content + LANES_CLOSE, safe_parser())
+        except etree.XMLSyntaxError:
+            raise PlanViewMismatch from None
+        elements = list(root.iter())[1:]  # the plain form has no comment or PI: elements in start tag order
+        if len(elements) != len(layout.tag_lines):
+            raise PlanViewMismatch
+        self.line = {element: index for index, element in enumerate(elements)}.__getitem__
+        try:
+            _, sections = self.lanes(root)
+            unknown = self.unknown(root, {"laneOffset", "laneSection"})
+        except InputError:
+            raise PlanViewMismatch from None
+        finally:
+            del self.line  # the method again
+        # the template's holes are the cubic records in the order of the file, five numbers each
+        cubic_record = {element: k for k, element in enumerate(
+            e for e in elements if e.tag in ("laneOffset", "width", "border"))}
+
+        def tag_lines(index: int) -> tuple[int, int]:
+            return layout.tag_lines[index], layout.next_tag_lines[index]
+        recipes = []
+        for section in sections:
+            if section.single_side is not None or section.extra_xml or unknown:
+                raise PlanViewMismatch  # a string or bytes the careful path makes for each road
+            lanes = []
+            for lane in section.lanes:
+                if lane.heights or lane.extra_xml:
+                    raise PlanViewMismatch
+                children = elements[lane.line]
+                lanes.append(((lane.id, lane.type, lane.level, lane.predecessor, lane.successor),
+                              tuple(cubic_record[c] for c in children.iterchildren("width")),
+                              tuple(cubic_record[c] for c in children.iterchildren("border")),
+                              (lane.heights, lane.road_marks, lane.records), tag_lines(lane.line), lane.attrib))
+            recipes.append((section.s0, tag_lines(section.line), section.attrib, tuple(lanes)))
+        return tuple(cubic_record[e] for e in root.iterchildren("laneOffset")), tuple(recipes)
+
+    def lane_sections(self, lanes_element) -> tuple[LaneSection, ...]:
         sections = []
         for element in self.children(lanes_element, "laneSection"):
             s0 = self.number(element, "s", 0.0)
@@ -561,12 +649,14 @@ class _Reader:
                 s0, tuple(lanes), element.get("singleSide"), self.line(element), self.shared_attrib(element),
                 self.unknown(element, {"left", "center", "right"})))
         sections.sort(key=lambda section: section.s0)
+        return tuple(sections)
+
+    def warn_zero_length(self, sections: tuple[LaneSection, ...]) -> None:
         # zero-length lane sections are legal but carry no surface: keep them, evaluation skips them
-        for first, second in zip(sections, sections[1:]):
+        for first, second in pairwise(sections):
             if second.s0 - first.s0 <= 0:
                 self.warnings.append(Diagnostic(f"zero-length lane section at s={first.s0:g}; tolerated",
                                                 first.line, self.road_id, "laneSection"))
-        return tuple(sections)
 
     def lane(self, element, section_s0: float) -> Lane:
         lane_id = self.lane_id(element)
