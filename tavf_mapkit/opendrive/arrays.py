@@ -91,21 +91,36 @@ class RecordTable:
         force (the limit from the left: the value at the end of the interval before s)."""
         if not len(self.s0):
             return np.zeros(len(s))
-        group = np.asarray(group, dtype=np.int64)
-        s = np.asarray(s, dtype=float)
+        group, s = np.asarray(group, dtype=np.int64), np.asarray(s, dtype=float)
+        return self._cubic(*self._rows(group, s, from_left), s, derivative)
+
+    def evaluate_with_derivative(self, group: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(``evaluate(group, s)``, ``evaluate(group, s, derivative=True)``), the records found once."""
+        if not len(self.s0):
+            return np.zeros(len(s)), np.zeros(len(s))
+        group, s = np.asarray(group, dtype=np.int64), np.asarray(s, dtype=float)
+        rows = self._rows(group, s, None)
+        return self._cubic(*rows, s, False), self._cubic(*rows, s, True)
+
+    def _rows(self, group: np.ndarray, s: np.ndarray, from_left) -> tuple[np.ndarray, np.ndarray]:
+        """(row of the record in force at each (group, s), clipped into the table; whether there is one)."""
         index = self._last_at_or_before(group, s, inclusive=True)
         if from_left is not None:
-            before = self._last_at_or_before(group, s, inclusive=False)
+            # only the queries asking for the limit from the left (a section's end: a few of its samples)
+            left = np.flatnonzero(np.asarray(from_left, dtype=bool))
+            before = self._last_at_or_before(group[left], s[left], inclusive=False)
             # only inside the group: at the group's first record there is nothing to its left
-            same = (before >= 0) & (self.group[np.maximum(before, 0)] == group)
-            index = np.where(np.asarray(from_left, dtype=bool) & same, before, index)
+            same = (before >= 0) & (self.group[np.maximum(before, 0)] == group[left])
+            index[left[same]] = before[same]
         if self.extend_first:
             # before a group's first record: use that first record
             bounds = self.group_bounds
             first = bounds[np.clip(group, 0, len(bounds) - 1)]
             index = np.where((index < first) & (first < len(self.group)), first, index)
         i = np.clip(index, 0, len(self.s0) - 1)
-        valid = (index >= 0) & (self.group[i] == group)
+        return i, (index >= 0) & (self.group[i] == group)
+
+    def _cubic(self, i: np.ndarray, valid: np.ndarray, s: np.ndarray, derivative: bool) -> np.ndarray:
         ds = s - self.s0[i]
         a, b, c, d = self.coefficients[i].T
         value = b + ds * (2.0 * c + 3.0 * d * ds) if derivative else a + ds * (b + ds * (c + ds * d))
@@ -205,6 +220,12 @@ class NetworkArrays:
 
     def reference(self, road: np.ndarray, s: np.ndarray):
         """(x, y, z, heading, slope, superelevation, lane_offset) for arrays of (road index, s)."""
+        return (*self.pose(road, s), self.lane_offset.evaluate(road, s))
+
+    def pose(self, road: np.ndarray, s: np.ndarray):
+        """(x, y, z, heading, slope, superelevation) of the reference line for arrays of (road index, s):
+        ``reference`` without the lane offset (lane sections read theirs at their own ends: a sampling asks
+        ``section_lane_offset``)."""
         n = len(s)
         if len(self.geometries):
             # the rule ReferenceLine uses too: before a road's first geometry, that first one
@@ -213,5 +234,5 @@ class NetworkArrays:
             x, y, heading = (np.where(has, v, 0.0) for v in (x, y, heading))
         else:
             x = y = heading = np.zeros(n)
-        return (x, y, self.elevation.evaluate(road, s), heading, self.elevation.evaluate(road, s, derivative=True),
-                self.superelevation.evaluate(road, s), self.lane_offset.evaluate(road, s))
+        z, slope = self.elevation.evaluate_with_derivative(road, s)
+        return x, y, z, heading, slope, self.superelevation.evaluate(road, s)

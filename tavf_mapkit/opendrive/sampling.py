@@ -198,7 +198,7 @@ def sample_lanes_at(odr, sample_section: np.ndarray, sample_s: np.ndarray) -> La
     sample_section = np.asarray(sample_section, dtype=np.int64)
     sample_s = np.asarray(sample_s, dtype=float)
     road = arrays.section_road[sample_section]
-    x, y, z, heading, slope, superelevation, _ = arrays.reference(road, sample_s)
+    x, y, z, heading, slope, superelevation = arrays.pose(road, sample_s)
     lane_offset = arrays.section_lane_offset(sample_section, sample_s)
     pair_lane, pair_sample, inner_pair = lane_pairs(arrays, sample_section)
     t_inner, t_outer = border_offsets(arrays, pair_lane, sample_s[pair_sample], inner_pair)
