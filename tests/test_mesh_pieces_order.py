@@ -57,3 +57,21 @@ def test_swept_section_from_nearby_pieces_is_that_of_every_line():
         assert len(ours) == len(theirs) and all(np.array_equal(a, b) for a, b in zip(ours, theirs))
         found += bool(len(ours))
     assert found >= 20  # most queries reach some lane
+
+
+def test_pieces_reused_from_the_group_before_are_those_sampled_anew():
+    """Junction-cluster groups take the pieces of the roads they share with the group before from it: the same
+    arrays, in the same order, as sampling those roads again (a piece depends on its own lane alone)."""
+    odr = load_opendrive(shared_path("xodr", "esmini", "multi_intersections.xodr"))
+    rng = np.random.default_rng(5)
+    n = len(odr.roads)
+    for _ in range(8):
+        before = rng.choice(n, int(rng.integers(1, n)), replace=False)
+        now = np.concatenate([rng.choice(before, len(before) // 2, replace=False),
+                              rng.choice(n, int(rng.integers(0, n // 2)), replace=False)])
+        known = CentrePieces.of(odr, before)
+        anew, reused = CentrePieces.of(odr, now), CentrePieces.of(odr, now, known)
+        assert len(anew.width) > 0
+        for name in ("points", "start", "width", "road", "low", "high", "made_for"):
+            a, b = getattr(anew, name), getattr(reused, name)
+            assert a.dtype == b.dtype and np.array_equal(a, b), name

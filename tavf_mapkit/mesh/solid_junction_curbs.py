@@ -77,11 +77,12 @@ def curb_context(surface: LabelledMesh, cluster_faces: np.ndarray):
 
 class CurbSurroundings:
     """The lanes the curbs of junction clusters must respect -- connecting roads' ends and driving lanes'
-    swept paths -- sampled once for the ``roads`` indices (all when not given), asked per cluster."""
+    swept paths -- sampled once for the ``roads`` indices (all when not given), asked per cluster. ``before``:
+    the surroundings of the group of clusters before, whose swept pieces of the roads both need are reused."""
 
-    def __init__(self, odr, roads: np.ndarray | None = None):
+    def __init__(self, odr, roads: np.ndarray | None = None, before: CurbSurroundings | None = None):
         self.ends, self.end_road = _road_ends(odr, roads)
-        self.pieces = CentrePieces.of(odr, roads)
+        self.pieces = CentrePieces.of(odr, roads, None if before is None else before.pieces)
 
     def ends_of(self, roads: np.ndarray) -> np.ndarray:
         return self.ends[np.isin(self.end_road, roads)]

@@ -386,9 +386,10 @@ def _junction_curbs(odr, units, surface: _SurfaceTiles, stores, tally: _Tally, r
 
     junction_rank = junction_ranks(odr)
     clusters = clusters_in_order(surface.grid, tally.cluster_box)
+    around = None
     for start in range(0, len(clusters), CLUSTER_GROUP):
         group = clusters[start:start + CLUSTER_GROUP]
-        around = curb_surroundings(odr, units, group, tally.cluster_box)
+        around = curb_surroundings(odr, units, group, tally.cluster_box, around)
         for k, unit in enumerate(group):
             report(start + k, len(clusters))
             _cluster_curbs(odr, units, unit, surface, around, junction_rank, stores, tally, CONTEXT_REACH)
@@ -407,12 +408,14 @@ def clusters_in_order(spill_grid: TileGrid, cluster_box: dict) -> list:
     return sorted(cluster_box, key=lambda u: corner_tile[u][::-1])
 
 
-def curb_surroundings(odr, units, group, cluster_box: dict):
-    """One sampling of the lanes around a group of junction clusters (``CurbSurroundings``)."""
+def curb_surroundings(odr, units, group, cluster_box: dict, before=None):
+    """One sampling of the lanes around a group of junction clusters (``CurbSurroundings``); ``before``: the
+    group before's, whose lanes this group shares are not sampled again (groups follow each other along rows
+    of tiles, so each road is sampled about once instead of once per group that comes near it)."""
     from tavf_mapkit.mesh.solid_junction_curbs import ROAD_REACH, CurbSurroundings
 
     roads = np.unique(np.concatenate([units.roads_near(cluster_box[u], ROAD_REACH) for u in group]))
-    return CurbSurroundings(odr, roads)
+    return CurbSurroundings(odr, roads, before)
 
 
 def _cluster_curbs(odr, units, unit, surface, around, junction_rank, stores, tally, reach) -> None:
