@@ -195,7 +195,7 @@ class Drape:
         point_index, face = self.index.covering(points, distance)
         same = self.groups[face] == groups[point_index]
         point_index, face = point_index[same], face[same]
-        missing = np.setdiff1d(np.arange(len(points)), point_index)
+        missing = np.flatnonzero(np.bincount(point_index, minlength=len(points)) == 0)  # no face covers them
         if len(missing):
             nearest = _nearest_triangle(tri[:, :, :2], points[missing], self.groups, groups[missing])
             found = nearest >= 0
@@ -294,18 +294,20 @@ def _barycentric(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
 
 def _refine(plan: np.ndarray, faces: np.ndarray, height: np.ndarray, lanes: LabelledMesh, eps: float,
             min_edge: float, levels: int = 6, plan_group: np.ndarray | None = None,
-            lane_group: np.ndarray | None = None, plan_road: np.ndarray | None = None):
+            lane_group: np.ndarray | None = None, plan_road: np.ndarray | None = None,
+            lane_drape: Drape | None = None):
     """Split junction triangles until their plane is within eps of the draped height at every edge midpoint
     and centre (or edges reach ``min_edge``). Edges are split at their midpoint for both neighbours, and each
     triangle is cut into 2, 3 or 4 by the pattern of its split edges, so the mesh stays conforming.
     ``plan_group`` / ``lane_group``: the cluster of every plan vertex and lane face (clusters never mix);
-    ``plan_road``: the junction's first road of every plan vertex (carried along to new vertices)."""
+    ``plan_road``: the junction's first road of every plan vertex (carried along to new vertices);
+    ``lane_drape``: ``Drape(lanes, groups=lane_group)`` made before (its index is the costly part)."""
     plan_group = np.zeros(len(plan), dtype=np.int64) if plan_group is None else plan_group
     plan_road = np.zeros(len(plan), dtype=np.int64) if plan_road is None else plan_road
     lane_group = np.zeros(len(lanes.faces), dtype=np.int64) if lane_group is None else lane_group
     # the connecting lanes' own vertices are check points too: they carry every feature of the height field
     # at the resolution the lanes were meshed with (cross slopes of neighbouring connecting roads, crests)
-    lane_drape = Drape(lanes, groups=lane_group)
+    lane_drape = Drape(lanes, groups=lane_group) if lane_drape is None else lane_drape
     vertex_group = np.zeros(len(lanes.vertices), dtype=np.int64)
     vertex_group[lanes.faces.ravel()] = np.repeat(lane_group, 3)
     keyed = np.unique(np.column_stack([vertex_group, np.round(lanes.vertices[:, :2], 6)]), axis=0)
@@ -416,7 +418,7 @@ def junction_surfaces(odr, sampling, lanes: LabelledMesh, raised_rows: np.ndarra
     plan_road = np.concatenate(roads)
     plan, faces, height, plan_group, plan_road = _refine(plan, faces, height, lanes, eps, min_edge,
                                                          plan_group=plan_group, lane_group=lane_group,
-                                                         plan_road=plan_road)
+                                                         plan_road=plan_road, lane_drape=lane_drape)
     # one query for vertices (s/t) and face centres (labels)
     _, label_face, uv, _ = lane_drape(np.concatenate([plan, plan[faces].mean(axis=1)]),
                                       groups=np.concatenate([plan_group, plan_group[faces[:, 0]]]))
