@@ -38,7 +38,11 @@ def read_npz(source: str | Path | bytes) -> dict[str, np.ndarray]:
     """Every array of an ``.npz`` (its path or its bytes) by name, as ``np.load(source, allow_pickle=False)``
     gives them (fresh, writable arrays); a damaged file raises what ``np.load`` raises for it (``BadZipFile``,
     ``ValueError``, ``EOFError``, ``OSError``; ``TypeError`` for a lone .npy array)."""
-    data = source if isinstance(source, bytes) else Path(source).read_bytes()
+    if isinstance(source, bytes):
+        data = source
+    else:
+        with open(source, "rb", buffering=0) as file:  # unbuffered: one read of the whole file
+            data = file.readall()
     try:
         return _read_stored(data)
     except _Unusual:

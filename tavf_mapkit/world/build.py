@@ -121,7 +121,7 @@ def build_collision_world_from_tiles(labelled: Path, out_dir, progress: Progress
         tiles = sorted(zip(index_json["tiles"], map(tuple, index_json["indices"])),
                        key=lambda item: (item[1][1], item[1][0]))
         if fanout is None:
-            made = (tile_files(grid, index, Path(labelled) / f"{name}.npz") for name, index in tiles)
+            made = (tile_files(grid, index, f"{labelled}/{name}.npz") for name, index in tiles)
         else:
             from tavf_mapkit.world.remote import remote_tile_files
 
