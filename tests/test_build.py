@@ -576,8 +576,10 @@ def test_damaged_mesh_stage_files_are_made_again_not_trusted(sample_build, tmp_p
     tiles[0].write_bytes(data)
     tiles[-1].write_bytes(b"not a zip")
     assert meshed.labelled(0.05, 100.0, osm) is None
+    assert meshed.labelled(0.05, 100.0, osm, read=False) == mesh / "labelled"  # there; the caller reads it
     tiles[-1].unlink()
     assert meshed.labelled(0.05, 100.0, osm) is None
+    assert meshed.labelled(0.05, 100.0, osm, read=False) is None
     (mesh / "mesh.json").write_text("{")
     assert _MeshStageOutput(SimpleNamespace(artifacts={"mesh": mesh})).origin() is None
 

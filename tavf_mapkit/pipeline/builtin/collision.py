@@ -96,6 +96,8 @@ class _MeshStageOutput:
         """mesh/labelled, when it was made at ``eps`` on tiles of ``tile`` metres, with solids, from the same
         buildings input, and every file it lists is there and readable (``read`` off: there, as files; the
         caller reads them and makes the world anew if one is unreadable)."""
+        import os
+
         from tavf_mapkit.mesh.tiled import read_labelled_index
         from tavf_mapkit.npzfile import read_npz
         from tavf_mapkit.world.build import TILE_READ_ERRORS
@@ -109,11 +111,11 @@ class _MeshStageOutput:
             index = read_labelled_index(folder)
             if float(index["eps"]) != eps or float(index["tile_size"]) != tile:
                 return None
+            if not read:
+                # one listing of the folder, not a stat per tile (a region has tens of thousands)
+                files = {entry.name for entry in os.scandir(folder) if entry.is_file()}
+                return folder if all(f"{name}.npz" in files for name in index["tiles"]) else None
             for name in index["tiles"]:
-                if not read:
-                    if not (folder / f"{name}.npz").is_file():
-                        return None
-                    continue
                 # a damaged file is made again, not trusted: BadZipFile (zip), EOFError / ValueError (arrays)
                 read_npz(folder / f"{name}.npz")
             return folder
