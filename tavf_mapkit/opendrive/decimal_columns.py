@@ -104,7 +104,7 @@ def decimals_at(buffer: np.ndarray, ends: np.ndarray, lengths: np.ndarray) -> tu
             read = read.copy()
             read[wide[once]] = True
     negative = read & (first == _MINUS)
-    out[negative] = -out[negative]
+    np.negative(out, out=out, where=negative)
     rest = np.flatnonzero(plain & ~read)  # plain, but not read above (halfway, or no x87 long double): float()
     if len(rest):
         out[rest] = [float(buffer[start:start + length].tobytes())

@@ -34,6 +34,7 @@ from tavf_mapkit.opendrive.lanes_scan import (
 CHUNK_BYTES = 1 << 20  # read this much at a time: array operations over hundreds of planViews each
 _OPEN, _CLOSE = b"<planView>", b"</planView>"
 _LONGEST_HELD = 64 << 20
+_LANES_CONTENTS_KEPT = 1 << 15  # distinct lanes contents whose template is kept (about 1 kB each): bounded memory
 _W = rb"(?:[ \t\n]|\r\n)*"  # XML white space; a lone CR would count lines differently than libxml2: refused
 # one code per text between two double quotes of a planView's content (the attribute values are between them)
 _TOKEN_KINDS = [
@@ -56,6 +57,11 @@ _OPENERS = np.frombuffer(b"SnN", dtype=np.uint8)  # tokens that end with a geome
 _AFTER_LENGTH_CODES = b"aNE"  # the token after @length: an arc, or a line
 _AFTER_LENGTH = np.frombuffer(_AFTER_LENGTH_CODES, dtype=np.uint8)
 _ROLE = {ord("x"): 1, ord("y"): 2, ord("h"): 3, ord("l"): 4, ord("a"): 6}  # a value's column by the text before it
+# the same as tables by code (one gather per chunk, not a pass per code)
+_COLUMN_OF_CODE = np.zeros(256, dtype=np.int64)  # s (0) after S, n or N
+_COLUMN_OF_CODE[list(_ROLE)] = list(_ROLE.values())
+_IS_OPENER = np.isin(np.arange(256), _OPENERS)
+_IS_AFTER_LENGTH = np.isin(np.arange(256), _AFTER_LENGTH)
 _LINE, _ARC = float(GeometryKind.LINE), float(GeometryKind.ARC)
 
 
@@ -102,6 +108,7 @@ class PlanViewScan:
         self.lanes_blocks: deque = deque()
         self._lanes_seen: set[int] = set()  # hashes of the lanes templates seen (a collision only empties one more)
         self._lanes_layouts: dict[bytes, LanesLayout | None] = {}
+        self._lanes_templates: dict[bytes, tuple | None] = {}  # lanes_template of the first contents, by content
 
     def read(self, size: int = -1) -> bytes:
         while len(self._ready) - self._ready_at < max(size, 1) and not self._ended:
@@ -173,7 +180,7 @@ class PlanViewScan:
     def _emit(self, data: bytes, cut: int, spans: list) -> None:
         """Hand on data[:cut] with the plain planViews among ``spans`` emptied; keep the rest for later."""
         emptied = [(start + len(_OPEN), close, newlines) for start, close, newlines in self._convert(data, spans)]
-        lanes = self._empty_lanes(data, cut)
+        lanes = self._empty_lanes(data, cut, spans)
         if lanes:
             emptied = sorted(emptied + lanes)
         pieces, position = [], 0
@@ -189,22 +196,33 @@ class PlanViewScan:
             self._last_byte = data[cut - 1:cut]
         self._held = data[cut:]
 
-    def _empty_lanes(self, data: bytes, cut: int) -> list:
-        """Queue the <lanes> blocks in data[:cut] in the plain form whose content was seen before
-        (lanes_scan.py); the (content start, end, newlines) of those to empty."""
-        emptied, seen, layouts = [], self._lanes_seen, self._lanes_layouts
-        position, line, lines_at = 0, self._held_line, 0
+    def _empty_lanes(self, data: bytes, cut: int, plan_views: list) -> list:
+        """Queue the <lanes> blocks in data[:cut] in the plain form whose template was seen before
+        (lanes_scan.py); the (content start, end, newlines) of those to empty. They are looked for between the
+        ``plan_views`` (start, end) only: those are most of the bytes, and a planView holds no road's lanes."""
+        emptied, seen, layouts, templates = [], self._lanes_seen, self._lanes_layouts, self._lanes_templates
+        line, lines_at = self._held_line, 0
+        gaps = iter(zip([0] + [close for _, close in plan_views], [start for start, _ in plan_views] + [cut]))
+        position, gap_end = next(gaps)
         while True:
-            start = data.find(LANES_OPEN, position, cut)
+            start = data.find(LANES_OPEN, position, gap_end)
             if start < 0:
-                return emptied
+                gap = next(gaps, None)
+                if gap is None:
+                    return emptied
+                position, gap_end = max(gap[0], position), gap[1]  # (a lanes' end may be past the gap's start)
+                continue
             content_start = start + len(LANES_OPEN)
             close = data.find(LANES_CLOSE, content_start, cut)
             if close < 0:
                 return emptied
             position = close + len(LANES_CLOSE)
             content = data[content_start:close]
-            template = lanes_template(content)
+            template = templates.get(content, False)
+            if template is False:
+                template = lanes_template(content)
+                if len(templates) < _LANES_CONTENTS_KEPT:
+                    templates[content] = template
             if template is None:
                 continue
             key = hash(template[0])
@@ -339,15 +357,13 @@ class PlanViewScan:
         # a value follows each text but a planView's last: its column is the code of the text before it
         last_token = np.cumsum(token_counts) - 1
         value_codes = np.delete(codes, last_token)
-        columns = np.zeros(len(value_codes), dtype=np.int64)  # s after S, n or N
-        for code, column in _ROLE.items():
-            columns[value_codes == code] = column
-        opener = np.isin(codes, _OPENERS)
+        columns = _COLUMN_OF_CODE[value_codes]
+        opener = _IS_OPENER[codes]
         count = int(opener.sum())
         rows = np.zeros((count, NARROW_COLUMNS))
-        geometry_of_value = np.cumsum(np.isin(value_codes, _OPENERS)) - 1
+        geometry_of_value = np.cumsum(_IS_OPENER[value_codes]) - 1
         rows[geometry_of_value, columns] = numbers
-        after_length = np.isin(codes, _AFTER_LENGTH)
+        after_length = _IS_AFTER_LENGTH[codes]
         is_arc = codes[after_length] == ord("a")
         shape_newlines = before_tag[after_length]
         rows[:, 5] = np.where(is_arc, _ARC, _LINE)

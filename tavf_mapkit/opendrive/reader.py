@@ -46,6 +46,7 @@ _CUBIC = ("a", "b", "c", "d")
 _CUBIC_KEYS = list(_CUBIC)
 _LANE_RECORDS = frozenset({"speed", "access", "material", "visibility", "rule"})
 _LANE_GROUPS = ("left", "center", "right")
+_LANES_CONTENTS_KEPT = 1 << 15  # lanes contents whose profiles are kept (bounded memory: the rest are made again)
 _SHARED_NUMBER_LENGTH = 6  # attribute values this short are shared even when they are numbers (Reader.attrib)
 
 
@@ -156,7 +157,8 @@ class _Reader:
         self.marks: dict[tuple, RoadMark] = {}  # identical plain road marks shared (road_mark)
         self.records: dict[tuple, LaneRecord] = {}  # identical plain lane records shared (lane_record)
         self.tuples: dict[tuple, tuple] = {}  # shared_tuple
-        self.lane_recipes: dict[bytes, tuple] = {}  # recipe_lanes
+        self.lane_recipes: dict[bytes, tuple] = {}  # recipe_lanes, by template
+        self.lane_profiles: dict[bytes, tuple] = {}  # recipe_profiles, by content (at most _LANES_CONTENTS_KEPT)
 
     # -- helpers ---------------------------------------------------------------------------------------------
     def word(self, element, name: str, default: str | None = None) -> str | None:
@@ -563,6 +565,27 @@ class _Reader:
         recipe = self.lane_recipes.get(key)
         if recipe is None:
             recipe = self.lane_recipes[key] = self.lanes_recipe(content, layout)
+        section_recipes = recipe[1]
+        profiles = self.lane_profiles.get(content)  # most contents repeat whole: their profiles too
+        if profiles is None:
+            profiles = self.recipe_profiles(recipe, values)
+            if len(self.lane_profiles) < _LANES_CONTENTS_KEPT:
+                self.lane_profiles[content] = profiles
+        lane_offset, lane_profiles = profiles
+        lane_profiles = iter(lane_profiles)
+        line = tag_line + self.source.line_offset
+        big = tag_line + layout.newlines >= BIG_LINE  # past libxml2's 16-bit lines (lanes_scan.LanesLayout)
+        return lane_offset, tuple([
+            LaneSection(s0, tuple([
+                Lane(*head, *next(lane_profiles), *tail, lane_line(line, tag_line, lines) if big else line + lines[0],
+                     attrib)
+                for head, tail, lines, attrib in lanes]),
+                None, lane_line(line, tag_line, section_lines) if big else line + section_lines[0], section_attrib)
+            for s0, section_lines, section_attrib, lanes, _ in section_recipes])
+
+    def recipe_profiles(self, recipe: tuple, values: list[bytes]) -> tuple:
+        """(lane offset, ((widths, borders) of each lane of each section, in order)) of a lanes recipe with these
+        numbers, as ``lanes`` makes them (cubic, then the shared profile)."""
         try:
             numbers = list(map(float, values))
         except ValueError:  # e.g. "1e5e5" or "": the careful path names it or reads it as 0
@@ -573,23 +596,16 @@ class _Reader:
         records = list(zip(*[iter(numbers)] * 5))  # (s, a, b, c, d) of each cubic record
         profile = self.profiles.profile
         offset_holes, section_recipes = recipe
-        line = tag_line + self.source.line_offset
-        big = tag_line + layout.newlines >= BIG_LINE  # past libxml2's 16-bit lines (lanes_scan.LanesLayout)
-        return profile([(0.0 + s, a, b, c, d) for s, a, b, c, d in map(records.__getitem__, offset_holes)]), tuple([
-            LaneSection(s0, tuple([
-                Lane(*head,
-                     profile([(s0 + s, a, b, c, d) for s, a, b, c, d in map(records.__getitem__, widths)], True),
-                     profile([(s0 + s, a, b, c, d) for s, a, b, c, d in map(records.__getitem__, borders)], True),
-                     *tail, lane_line(line, tag_line, lines) if big else line + lines[0], attrib)
-                for head, widths, borders, tail, lines, attrib in lanes]),
-                None, lane_line(line, tag_line, section_lines) if big else line + section_lines[0], section_attrib)
-            for s0, section_lines, section_attrib, lanes in section_recipes])
+        return profile([(0.0 + s, a, b, c, d) for s, a, b, c, d in map(records.__getitem__, offset_holes)]), [
+            (profile([(s0 + s, a, b, c, d) for s, a, b, c, d in map(records.__getitem__, widths)], True),
+             profile([(s0 + s, a, b, c, d) for s, a, b, c, d in map(records.__getitem__, borders)], True))
+            for s0, _, _, _, cubic_records in section_recipes for widths, borders in cubic_records]
 
     def lanes_recipe(self, content: bytes, layout: LanesLayout) -> tuple:
-        """(the lane offset's cubic records, (s0, lines, attributes, lanes) per section) of a plain lanes
-        content, a lane as (id .. successor, its widths' cubic records, its borders', heights .. records, lines,
-        attributes); a cubic record as its index among the template's (lanes_scan.lanes_template), lines as its
-        start tag's (LanesLayout.tag_lines, next_tag_lines). Read by ``lanes`` from the content as a fragment
+        """(the lane offset's cubic records, (s0, lines, attributes, lanes, cubic records) per section) of a
+        plain lanes content, a lane as (id .. successor, heights .. records, lines, attributes), its cubic
+        records as (its widths', its borders'); a cubic record as its index among the template's
+        (lanes_scan.lanes_template), lines as its start tag's (LanesLayout.tag_lines, next_tag_lines). Read by ``lanes`` from the content as a fragment
         with the start tags' indices in place of lines. Raises PlanViewMismatch where the content would not make such
         objects (an error, a string or bytes the careful path makes for each road): the careful path reads the
         file."""
@@ -618,16 +634,16 @@ class _Reader:
         for section in sections:
             if section.single_side is not None or section.extra_xml or unknown:
                 raise PlanViewMismatch  # a string or bytes the careful path makes for each road
-            lanes = []
+            lanes, cubic_records = [], []
             for lane in section.lanes:
                 if lane.heights or lane.extra_xml:
                     raise PlanViewMismatch
                 children = elements[lane.line]
                 lanes.append(((lane.id, lane.type, lane.level, lane.predecessor, lane.successor),
-                              tuple(cubic_record[c] for c in children.iterchildren("width")),
-                              tuple(cubic_record[c] for c in children.iterchildren("border")),
                               (lane.heights, lane.road_marks, lane.records), tag_lines(lane.line), lane.attrib))
-            recipes.append((section.s0, tag_lines(section.line), section.attrib, tuple(lanes)))
+                cubic_records.append((tuple(cubic_record[c] for c in children.iterchildren("width")),
+                                      tuple(cubic_record[c] for c in children.iterchildren("border"))))
+            recipes.append((section.s0, tag_lines(section.line), section.attrib, tuple(lanes), tuple(cubic_records)))
         return tuple(cubic_record[e] for e in root.iterchildren("laneOffset")), tuple(recipes)
 
     def lane_sections(self, lanes_element) -> tuple[LaneSection, ...]:
