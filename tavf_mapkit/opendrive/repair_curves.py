@@ -42,8 +42,14 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from tavf_mapkit.opendrive.geometry import ELEMENT_NAMES, GEOMETRY_COLUMNS, GeometryKind
-from tavf_mapkit.opendrive.refline import ReferenceLine, RowPacker
+from tavf_mapkit.opendrive.geometry import (
+    ELEMENT_NAMES,
+    GEOMETRY_COLUMNS,
+    GeometryKind,
+    join_rows,
+    split_rows,
+)
+from tavf_mapkit.opendrive.refline import ReferenceLine, gather_side
 from tavf_mapkit.opendrive.repair import Repair
 from tavf_mapkit.opendrive.repair_lengths import TOLERANCE as LENGTH_TOLERANCE
 from tavf_mapkit.opendrive.repair_redundant import EQUATION_TOLERANCE, redundant_lines, repair_redundant
@@ -102,45 +108,37 @@ def repair_curves(odr, tolerance: float = TOLERANCE, max_pieces: int = MAX_PIECE
     used = np.minimum(table.length[rows], following - table.s[rows])
     lever = _widest_offsets(odr, np.unique(table.group[rows]), report=reporter(progress, "lane sections"))
     widest = np.array([lever.get(int(g), 0.0) for g in table.group[rows]])
-    # in batches of curves: memory bounded by the batch, not the map (Maribor: 6 GB in one go). A road's new
-    # reference line is made as soon as its last curve is fitted, as rows packed with other roads' (RowPacker):
-    # Columbus's 466,000 curves as ArcChains at once, and their 5.1 million pieces as Geometry records, took GBs
-    # Every road's line goes into the packs, in road order, those without curves too: theirs are views of the
-    # table of the map given (odr.arrays), which would otherwise stay alive with them after that map is gone
-    roads, repairs, packer = list(odr.roads), [], RowPacker()
-    packed = 0  # roads[:packed] are packed
-    pending: dict = {}  # road index -> {geometry index in the road: fit}, until the road's last curve is fitted
+    # in batches of curves: memory bounded by the batch, not the map (Maribor: 6 GB in one go). The roads whose
+    # last curve is fitted get their new reference lines at once, as views of one new table of rows (no
+    # per-road assembly: a region's 59,000 roads spent more in it than in fitting); Columbus's 466,000 curves
+    # as chains at once, and their 5.1 million pieces as Geometry records, took GBs. Every road's line is
+    # given rows of such a table, in road order, those without curves too: theirs are views of the table of the
+    # map given (odr.arrays), which would otherwise stay alive with them after that map is gone
+    roads, repairs = list(odr.roads), []
+    done = 0  # roads[:done] hold their new rows
+    pending = _PendingCurves()  # fitted curves of the roads not done yet
     maybe_redundant = False
     report = reporter(progress, "curves")
     for first in range(0, len(rows), CURVES_PER_BATCH):
         report(first, len(rows))
         batch = slice(first, first + CURVES_PER_BATCH)
-        fits = fit_curves(table, rows[batch], used[batch], widest[batch], tolerance, max_pieces)
-        for row, fit in zip(rows[batch].tolist(), fits):
-            index = int(table.group[row])
-            pending.setdefault(index, {})[row - int(starts[index])] = fit
-        del fits
-        unfinished = int(table.group[rows[first + CURVES_PER_BATCH]]) if first + CURVES_PER_BATCH < len(rows) \
-            else None  # the road of the next batch's first curve may have curves in this batch too
-        for index in [index for index in pending if index != unfinished]:
-            road = roads[index]
-            line, made = _repaired_line(road, pending.pop(index), tolerance)
-            repairs += made
-            if line is not None:
-                roads[index] = replace(road, reference_line=line)
-            for before in range(packed, index + 1):
-                packer.add(roads[before].reference_line)
-            packed = index + 1
-            maybe_redundant = maybe_redundant or redundant_lines_in(roads[index].reference_line)
+        pending.add(rows[batch], fit_curves(table, rows[batch], used[batch], widest[batch], tolerance, max_pieces),
+                    table.s[rows[batch]])
+        # the road of the next batch's first curve may have curves in this batch too: it waits for them
+        upto = int(table.group[rows[first + CURVES_PER_BATCH]]) if first + CURVES_PER_BATCH < len(rows) \
+            else len(roads)
+        made, redundant = _replace_curves(roads, done, upto, int(starts[done]) if done < len(roads) else len(table),
+                                          pending.take(int(starts[upto]) if upto < len(roads) else len(table)),
+                                          tolerance, check_redundant=not maybe_redundant)
+        repairs += made
+        maybe_redundant = maybe_redundant or redundant
+        done = upto
     report(len(rows), len(rows))
-    for before in range(packed, len(roads)):
-        packer.add(roads[before].reference_line)
-    packer.flush()
     if not any(r.action == CURVE_AS_ARCS for r in repairs):
         return odr, repairs
     repaired = OpenDriveMap(odr.header, tuple(roads), odr.junctions, odr.controllers, odr.source, odr.warnings,
                             odr.extra_xml)
-    # the given map's tables are done with (every road's rows are in the packs now) and made again if that map is
+    # the given map's tables are done with (every road's rows are in new tables now) and made again if that map is
     # asked for them: not held beside the repaired map's while the caller still holds the given one (Columbus:
     # 150 MB)
     del table
@@ -152,74 +150,129 @@ def repair_curves(odr, tolerance: float = TOLERANCE, max_pieces: int = MAX_PIECE
     return repaired, repairs
 
 
-def _repaired_line(road, fit_of: dict, tolerance: float) -> tuple[ReferenceLine | None, list]:
-    """(the road's reference line with its fitted curves as their pieces, or None when none was replaced;
-    repairs): ``fit_of`` maps a geometry's index in the road to its ArcChain, or to why it was kept. Rows in,
-    rows out: no Geometry record per piece."""
-    line = road.reference_line
-    rows, lines, extra_xml = line.rows, line.lines, line.extra_xml or {}
-    replaced, chains, repairs = [], [], []
-    for i in sorted(fit_of):  # the fitted curves only: a road's other records are taken over as a block
-        fit = fit_of[i]
-        if isinstance(fit, ArcChain):
-            replaced.append(i)
-            chains.append(_chain_rows(rows[i], fit))
-        elif fit is not None:
-            source = None if lines[i] < 0 else int(lines[i])
-            kind = GeometryKind(int(rows[i, 5]))
-            repairs.append(Repair(KEPT_CURVE, road.id, source,
-                                  f"{ELEMENT_NAMES[kind]} at s={float(rows[i, 0]):.6g} kept: {fit}"))
-    if not replaced:
-        return None, repairs
+class _PendingCurves:
+    """The fitted curves (``FittedCurves`` of consecutive batches) whose roads have not had their new lines yet:
+    per curve its table row, why it was kept (or None) and its chain's planView rows; in table-row order."""
+
+    def __init__(self):
+        self.rows, self.kept, self.piece_count, self.pieces = np.zeros(0, dtype=np.int64), [], \
+            np.zeros(0, dtype=np.int64), np.zeros((0, GEOMETRY_COLUMNS))
+
+    def add(self, rows: np.ndarray, fitted: FittedCurves, s: np.ndarray) -> None:
+        self.rows = np.concatenate([self.rows, rows])
+        self.kept += fitted.kept
+        self.piece_count = np.concatenate([self.piece_count, np.diff(fitted.first_piece)])
+        self.pieces = np.concatenate([self.pieces, fitted.rows(s)])
+
+    def take(self, before_row: int) -> tuple[np.ndarray, list, np.ndarray, np.ndarray]:
+        """(table rows, kept, piece counts, pieces) of the curves on table rows before ``before_row``, which
+        leave the pending ones."""
+        n = int(np.searchsorted(self.rows, before_row))
+        m = int(self.piece_count[:n].sum())
+        taken = self.rows[:n], self.kept[:n], self.piece_count[:n], self.pieces[:m]
+        self.rows, self.kept, self.piece_count, self.pieces = \
+            self.rows[n:], self.kept[n:], self.piece_count[n:], self.pieces[m:]
+        return taken
+
+
+def _replace_curves(roads: list, lo: int, hi: int, first_row: int, fitted, tolerance: float,
+                    check_redundant: bool) -> tuple[list, bool]:
+    """Give roads[lo:hi] (whose planView rows start at ``first_row`` of the map's table) their fitted curves as
+    chains of rows, in place: one new table of rows for all of them, each road's line a view of its part (a road
+    without a replaced curve keeps its line, on the new rows). ``fitted``: ``_PendingCurves.take``. Returns (the
+    repairs, in road order: per road one per curve kept and one for its curves replaced; whether a replaced road
+    now has redundant lines, asked only when ``check_redundant``)."""
+    curve_rows, kept, piece_count, pieces = fitted
+    lines_of = [road.reference_line for road in roads[lo:hi]]
+    counts = np.array([len(line) for line in lines_of], dtype=np.int64)
+    old_bounds = np.concatenate([[0], np.cumsum(counts)])
+    if not old_bounds[-1]:
+        return [], False
+    side_index, side_params = gather_side(lines_of, counts)
+    old = join_rows(np.concatenate([line.narrow for line in lines_of if len(line)]), side_index, side_params)
+    old_lines = np.concatenate([line.lines for line in lines_of if len(line)]).astype(np.int32, copy=False)
+    position = curve_rows - first_row  # each curve's row in ``old``
+    chained = piece_count > 0
+    replaced = position[chained]
     # each record becomes one row, a replaced curve its chain's; record i's first row is then at new_start[i]
-    block_length = np.ones(len(rows), dtype=np.int64)
-    block_length[replaced] = [len(chain) for chain in chains]
-    new_start = np.concatenate([[0], np.cumsum(block_length)[:-1]])
-    # a replaced curve's unknown children go with its first piece
-    new_extra = {int(new_start[i]): extra_xml[i] for i in sorted(extra_xml) if extra_xml[i]}
-    pieces, taken = [], 0
-    for i, chain in zip(replaced, chains):
-        pieces += [rows[taken:i], chain]
-        taken = i + 1
-    pieces.append(rows[taken:])
-    new_rows = np.concatenate(pieces)
-    new_lines = np.repeat(np.asarray(lines, dtype=np.int32), block_length)
-    kinds = new_rows[:, 5]
-    arcs = int(np.count_nonzero(kinds == int(GeometryKind.ARC)))
-    more_lines = int(np.count_nonzero(kinds == int(GeometryKind.LINE))) - int(
-        np.count_nonzero(rows[:, 5] == int(GeometryKind.LINE)))
-    names = " and ".join(sorted({ELEMENT_NAMES[GeometryKind(int(rows[i, 5]))] for i in replaced}))
-    first = None if lines[replaced[0]] < 0 else int(lines[replaced[0]])
-    repairs.append(Repair(CURVE_AS_ARCS, road.id, first,
-                          f"{len(replaced)} {names} as {arcs} arcs and {more_lines:+d} lines "
-                          f"(lane borders within {tolerance * 1000:g} mm of the curve's)"))
-    return ReferenceLine.from_rows(new_rows, new_lines, new_extra), repairs
+    block_length = np.ones(len(old), dtype=np.int64)
+    block_length[replaced] = piece_count[chained]
+    new_start = np.concatenate([[0], np.cumsum(block_length)])
+    new = np.empty((int(new_start[-1]), GEOMETRY_COLUMNS))
+    taken_over = np.ones(len(old), dtype=bool)
+    taken_over[replaced] = False
+    new[new_start[:-1][taken_over]] = old[taken_over]
+    chain_count = piece_count[chained]
+    within = np.arange(len(pieces)) - np.repeat(np.cumsum(chain_count) - chain_count, chain_count)
+    new[np.repeat(new_start[replaced], chain_count) + within] = pieces
+    new_lines = np.repeat(old_lines, block_length)
+    narrow, new_side_index, new_side_params = split_rows(new)
+    new_bounds = new_start[old_bounds]
+    side_bounds = np.searchsorted(new_side_index, new_bounds)
+    # per road: curves replaced, their kinds, arcs among its new rows and lines it gained (the repair's numbers)
+    n_roads = hi - lo
+    old_road = np.repeat(np.arange(n_roads), counts)
+    new_road = np.repeat(np.arange(n_roads), np.diff(new_bounds))
+    replaced_road = old_road[replaced]
+    replaced_count = np.bincount(replaced_road, minlength=n_roads)
+    kinds = old[replaced, 5]
+    param_poly3 = np.bincount(replaced_road, weights=kinds == int(GeometryKind.PARAM_POLY3), minlength=n_roads)
+    poly3 = np.bincount(replaced_road, weights=kinds == int(GeometryKind.POLY3), minlength=n_roads)
+    arcs = np.bincount(new_road, weights=new[:, 5] == int(GeometryKind.ARC), minlength=n_roads)
+    more_lines = np.bincount(new_road, weights=new[:, 5] == int(GeometryKind.LINE), minlength=n_roads) - \
+        np.bincount(old_road, weights=old[:, 5] == int(GeometryKind.LINE), minlength=n_roads)
+    first_replaced = np.full(n_roads, -1, dtype=np.int64)
+    first_replaced[replaced_road[::-1]] = replaced[::-1]  # the last write per road wins: its first curve
+    kept_at: dict = {}  # road -> [(row in old, why)]
+    for k in np.flatnonzero(~chained).tolist():
+        kept_at.setdefault(int(old_road[position[k]]), []).append((int(position[k]), kept[k]))
+    with_curves = np.zeros(n_roads, dtype=bool)
+    with_curves[old_road[position]] = True
+    near_lines = _near_line_roads(new, new_road, n_roads) & with_curves if check_redundant else None
+    repairs, redundant = [], False
+    for r in range(n_roads):
+        a, b = int(new_bounds[r]), int(new_bounds[r + 1])
+        road, line = roads[lo + r], lines_of[r]
+        for row, why in kept_at.get(r, ()):
+            source = None if old_lines[row] < 0 else int(old_lines[row])
+            repairs.append(Repair(KEPT_CURVE, road.id, source, f"{ELEMENT_NAMES[GeometryKind(int(old[row, 5]))]} "
+                                                               f"at s={float(old[row, 0]):.6g} kept: {why}"))
+        if not replaced_count[r]:
+            if b > a:
+                line.share_rows(narrow[a:b])
+        else:
+            sa, sb = int(side_bounds[r]), int(side_bounds[r + 1])
+            extra_xml = None
+            if line.extra_xml:  # a replaced curve's unknown children go with its first piece
+                base = int(old_bounds[r])
+                extra_xml = {int(new_start[base + i] - a): line.extra_xml[i] for i in sorted(line.extra_xml)
+                             if line.extra_xml[i]}
+            line = ReferenceLine.from_narrow(narrow[a:b], new_side_index[sa:sb] - a, new_side_params[sa:sb],
+                                             new_lines[a:b], extra_xml)
+            roads[lo + r] = replace(road, reference_line=line)
+            names = " and ".join(name for name, count in (("paramPoly3", param_poly3[r]), ("poly3", poly3[r]))
+                                 if count)
+            source = int(old_lines[first_replaced[r]])
+            repairs.append(Repair(CURVE_AS_ARCS, road.id, None if source < 0 else source,
+                                  f"{int(replaced_count[r])} {names} as {int(arcs[r])} arcs and "
+                                  f"{int(more_lines[r]):+d} lines (lane borders within {tolerance * 1000:g} mm of "
+                                  f"the curve's)"))
+        if near_lines is not None and near_lines[r] and not redundant:
+            redundant = bool(redundant_lines(line.geometries))
+    return repairs, redundant
 
 
-def _chain_rows(row: np.ndarray, chain: ArcChain) -> np.ndarray:
-    """The planView rows (GEOMETRY_COLUMNS) of a chain, at the curve's s (``row``): a piece that turns less than
-    STRAIGHT over its length is a line, the others arcs."""
-    k, length = chain.curvature, chain.length
-    straight = (np.abs(k) * length <= STRAIGHT) & (0.5 * np.abs(k) * length * length <= STRAIGHT)
-    rows = np.zeros((len(k), GEOMETRY_COLUMNS))
-    rows[:, 0] = row[0] + chain.ds
-    rows[:, 1], rows[:, 2], rows[:, 3], rows[:, 4] = chain.x, chain.y, chain.hdg, length
-    rows[:, 5] = np.where(straight, int(GeometryKind.LINE), int(GeometryKind.ARC))
-    rows[:, 6] = np.where(straight, 0.0, k)
-    return rows
-
-
-def redundant_lines_in(line: ReferenceLine) -> bool:
-    """Whether ``redundant_lines`` finds any in the reference line; its own test, asked only where two
-    consecutive lines' headings are near (not one Geometry record per row of every line)."""
-    rows = line.rows
+def _near_line_roads(rows: np.ndarray, road: np.ndarray, n_roads: int) -> np.ndarray:
+    """Per road, whether two of its consecutive rows are lines whose headings are near: only there can
+    ``redundant_lines`` find any (asked of all roads' rows at once, not with a Geometry record per row)."""
+    near = np.zeros(n_roads, dtype=bool)
     if len(rows) < 2:
-        return False
+        return near
     lines = rows[:, 5] == int(GeometryKind.LINE)
-    near = np.abs(_wrap(rows[1:, 3] - rows[:-1, 3])) < 10.0 * EQUATION_TOLERANCE
-    if not (lines[1:] & lines[:-1] & near).any():
-        return False
-    return bool(redundant_lines(line.geometries))
+    pair = lines[1:] & lines[:-1] & (road[1:] == road[:-1])
+    pair &= np.abs(_wrap(rows[1:, 3] - rows[:-1, 3])) < 10.0 * EQUATION_TOLERANCE
+    near[road[1:][pair]] = True
+    return near
 
 
 def _widest_offsets(odr, road_indices: np.ndarray, step: float = 1.0, report: Report = no_report) -> dict:
@@ -259,15 +312,31 @@ def _lateral_offsets(arrays, sample_section: np.ndarray, sample_s: np.ndarray):
 
 
 @dataclass(frozen=True)
-class ArcChain:
-    """The pieces one curve became, in its own s (from 0): start offset, pose and curvature of each."""
+class FittedCurves:
+    """What ``fit_curves`` made of each curve: the pieces of its chain of arcs, in its own s (from 0) -- start
+    offset, pose and curvature of each, flat arrays in curve and s order, curve k's from ``first_piece[k]`` to
+    ``first_piece[k + 1]`` -- or, for a curve kept (no pieces), why (``kept[k]``; None for a curve fitted)."""
 
+    kept: list
+    first_piece: np.ndarray
     ds: np.ndarray
     x: np.ndarray
     y: np.ndarray
     hdg: np.ndarray
     curvature: np.ndarray
     length: np.ndarray
+
+    def rows(self, s: np.ndarray) -> np.ndarray:
+        """The planView rows (GEOMETRY_COLUMNS) of every piece, each curve's at its s in the road (``s``): a piece
+        that turns less than STRAIGHT over its length is a line, the others arcs."""
+        k, length = self.curvature, self.length
+        straight = (np.abs(k) * length <= STRAIGHT) & (0.5 * np.abs(k) * length * length <= STRAIGHT)
+        rows = np.zeros((len(k), GEOMETRY_COLUMNS))
+        rows[:, 0] = np.repeat(s, np.diff(self.first_piece)) + self.ds
+        rows[:, 1], rows[:, 2], rows[:, 3], rows[:, 4] = self.x, self.y, self.hdg, length
+        rows[:, 5] = np.where(straight, int(GeometryKind.LINE), int(GeometryKind.ARC))
+        rows[:, 6] = np.where(straight, 0.0, k)
+        return rows
 
 
 def _wrap(angle):
@@ -412,9 +481,9 @@ def _tangent_component(coefficients: np.ndarray, c, p):
 
 
 def fit_curves(table, rows: np.ndarray, used: np.ndarray, lever: np.ndarray, tolerance: float,
-               max_pieces: int = MAX_PIECES) -> list:
+               max_pieces: int = MAX_PIECES) -> FittedCurves:
     """Per curve (``rows`` of a GeometryTable, over its first ``used`` metres; ``lever``: the road's widest
-    lane offset), an ArcChain whose lane borders lie within ``tolerance`` of the curve's, or why there is none.
+    lane offset), a chain of arcs whose lane borders lie within ``tolerance`` of the curve's, or why there is none.
 
     All curves at once: pieces are flat arrays (curve, p_a, p_b) in curve and s order; each round fits every
     unfinished curve, accepts those whose pieces all fit, and splits the pieces that do not."""
@@ -426,29 +495,45 @@ def fit_curves(table, rows: np.ndarray, used: np.ndarray, lever: np.ndarray, tol
         outcome[k] = (f"@length {table.length[rows[k]]:.9g} m is longer than the curve "
                       f"({curves.table[k, -1]:.9g} m)")
     straight = _straight(curves, lever, budget) & ~short
-    for k in np.flatnonzero(straight).tolist():
-        x, y, hdg = curves.pose(np.array([k]), np.zeros(1))
-        outcome[k] = ArcChain(np.zeros(1), x, y, hdg, np.zeros(1), used[k:k + 1].copy())
+    # chains accepted, as blocks of (curve, ds, x, y, heading, curvature, length) of their pieces
+    accepted = []
+    lines = np.flatnonzero(straight)
+    if len(lines):
+        x, y, hdg = curves.pose(lines, np.zeros(len(lines)))
+        accepted.append((lines, np.zeros(len(lines)), x, y, hdg, np.zeros(len(lines)), used[lines].copy()))
+        for k in lines.tolist():
+            outcome[k] = _FITTED
     todo = np.flatnonzero(~straight & ~short)
     _refine(curves, *_initial_pieces(curves, todo, lever[todo], budget, max_pieces), used, lever, budget,
-            max_pieces, tolerance, outcome, split_neighbours=False)
+            max_pieces, tolerance, outcome, accepted, split_neighbours=False)
     # a piece next to a line can be stuck: the line fixes the heading at their knot, so the piece bends harder
     # the more it is split (Baltimore 41883). Only the curves that failed are fitted again, splitting such
     # neighbours too, so that every curve that fitted keeps its arcs
     failed = np.array([k for k in todo.tolist() if outcome[k] is None], dtype=np.int64)
     if len(failed):
         _refine(curves, *_initial_pieces(curves, failed, lever[failed], budget, max_pieces), used, lever, budget,
-                max_pieces, tolerance, outcome, split_neighbours=True)
+                max_pieces, tolerance, outcome, accepted, split_neighbours=True)
     for k in failed.tolist():
         if outcome[k] is None:
             outcome[k] = f"its arcs do not fit within {tolerance * 1000:g} mm after {_MAX_ROUNDS} refinements"
-    return outcome
+    # each curve's pieces are one run of one block: a stable sort by curve puts them in curve and s order
+    blocks = [np.concatenate(column) for column in zip(*accepted)] if accepted else [np.zeros(0)] * 7
+    curve = blocks[0].astype(np.int64)
+    order = np.argsort(curve, kind="stable")
+    first_piece = np.concatenate([[0], np.cumsum(np.bincount(curve, minlength=n))])
+    return FittedCurves([None if why is _FITTED else why for why in outcome], first_piece,
+                        *(column[order] for column in blocks[1:]))
 
 
-def _refine(curves, curve, pa, pb, used, lever, budget, max_pieces, tolerance, outcome,
+#: fit_curves' outcome of a curve whose chain was accepted
+_FITTED = object()
+
+
+def _refine(curves, curve, pa, pb, used, lever, budget, max_pieces, tolerance, outcome, accepted,
             split_neighbours: bool) -> None:
     """Fit every curve's pieces (flat arrays, in curve and s order) round by round; a curve whose pieces all fit
-    gets its ArcChain in ``outcome``, one that needs too many pieces the reason; the rest stay None."""
+    is _FITTED in ``outcome`` and its pieces a block of ``accepted`` (see fit_curves), one that needs too many
+    pieces gets the reason; the rest stay None."""
     n = len(outcome)
     why = f"more than {max_pieces} arcs would be needed to stay within {tolerance * 1000:g} mm"
     for _ in range(_MAX_ROUNDS):
@@ -463,10 +548,10 @@ def _refine(curves, curve, pa, pb, used, lever, budget, max_pieces, tolerance, o
         chain, deviation, closed = _arc_chains(curves, curve, pa, pb, used, lever, budget)
         fits = closed & (np.bincount(curve, weights=deviation > budget, minlength=n) == 0)
         done = fits[curve]
-        bounds = np.flatnonzero(np.r_[True, curve[1:] != curve[:-1], True])
-        for lo, hi in zip(bounds[:-1].tolist(), bounds[1:].tolist()):
-            if done[lo]:
-                outcome[int(curve[lo])] = ArcChain(*(value[lo:hi] for value in chain))
+        if done.any():
+            accepted.append((curve[done], *(value[done] for value in chain)))
+            for k in np.flatnonzero(fits).tolist():
+                outcome[k] = _FITTED
         # what does not fit is split: a piece by the square root of its excess (its heading error grows with
         # the square of its length), every piece of a curve that fits but does not close in two
         ratio = np.nan_to_num(deviation / budget, nan=4.0, posinf=4.0)
