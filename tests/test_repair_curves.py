@@ -343,3 +343,30 @@ def test_a_near_cusp_on_an_ordinary_road_becomes_arcs():
         moved = np.linalg.norm(_offset_points(lengthened.roads[0].reference_line, s, t)
                                - _offset_points(after, s, t), axis=1)
         assert moved.max() <= TOLERANCE, (t, moved.max())
+
+
+def test_near_lines_found_for_all_roads_at_once_are_each_roads_own(curves):
+    """_near_line_roads (all roads' rows at once) says of every road what repair_redundant's own test
+    (_near_line_pairs) says of its line: the repair then asks that test of no road. Lines of near headings are
+    added within a road and across two roads' boundary (which is no pair)."""
+    from tavf_mapkit.opendrive.geometry import GEOMETRY_COLUMNS
+    from tavf_mapkit.opendrive.refline import ReferenceLine
+    from tavf_mapkit.opendrive.repair_curves import _near_line_roads
+    from tavf_mapkit.opendrive.repair_redundant import _near_line_pairs
+
+    _, repaired, _ = curves
+    lines = [road.reference_line for road in repaired.roads]
+
+    def line_rows(headings):
+        rows = np.zeros((len(headings), GEOMETRY_COLUMNS))
+        rows[:, 0], rows[:, 3], rows[:, 4] = np.arange(len(headings)), headings, 1.0
+        return rows
+
+    made = [line_rows([0.5, 0.5 + 5e-6, 2.0]), line_rows([1.0]), line_rows([1.0 + 1e-7, 3.0]),
+            line_rows([np.pi - 1e-6, -np.pi + 1e-6])]  # near across the wrap of the heading too
+    lines += [ReferenceLine.from_rows(rows, np.full(len(rows), -1)) for rows in made]
+    rows = np.concatenate([line.rows for line in lines if len(line)])
+    road = np.repeat(np.arange(len(lines)), [len(line) for line in lines])
+    near = _near_line_roads(rows, road, len(lines))
+    assert near.tolist() == [_near_line_pairs(line) for line in lines]
+    assert near[-4:].tolist() == [True, False, False, True]

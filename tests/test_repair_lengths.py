@@ -339,3 +339,36 @@ def test_no_repair_keeps_netconvert_file_and_a_build_repairs_it(tmp_path):
     repaired = validate_file(out / "sample.xodr")
     assert not repaired.by_rule("geometry.param-poly3-length") and not repaired.by_rule("geometry.gap")
     assert repair_geometry_lengths(load_opendrive(out / "sample.xodr"))[1] == []
+
+
+def test_what_lies_where_the_stretch_moves_nothing_is_not_moved():
+    """SMap.fixed: every s at or before it maps to itself, and a profile that _unmoved_profile passes over comes
+    back from _mapped_profile unchanged (the repair takes such records over without asking the map), on stretch
+    maps (roads in s order) with gaps, overlaps and zero-length geometries, and profiles constant or not, before and across it."""
+    from tavf_mapkit.opendrive.cubic import CubicProfile
+    from tavf_mapkit.opendrive.repair_lengths import _mapped_profile, _stretch_map, _unmoved_profile
+
+    rng = np.random.default_rng(7)
+    fixed_seen, unmoved_seen = set(), 0
+    for _ in range(400):
+        n = int(rng.integers(1, 5))
+        lengths = rng.choice([0.0, 0.1, 3.3, 10.0], n) * rng.random(n) + rng.choice([0.0, 1.0], n)
+        steps = np.maximum(lengths[:-1] + rng.choice([0.0, 0.0, 1e-9, -0.05], n - 1), 0.0)  # in s order
+        starts = np.cumsum(np.r_[rng.choice([0.0, 2.5]), steps])
+        wrong = rng.random(n) < 0.5
+        arc = np.where(wrong, lengths * rng.uniform(0.9, 1.1, n), lengths)
+        mapping = _stretch_map(starts.tolist(), lengths.tolist(), arc, wrong & (lengths > 0))
+        fixed = mapping.fixed
+        fixed_seen.add("inf" if fixed == np.inf else "finite" if np.isfinite(fixed) else "none")
+        probes = np.r_[np.asarray(mapping.old), np.asarray(mapping.old) - 1e-7, rng.uniform(-1, 40, 20)]
+        for s in probes[probes <= fixed].tolist():
+            assert mapping.at(s) == s, (s, mapping)
+        s0 = np.sort(rng.choice(np.r_[0.0, starts, rng.uniform(0, 30, 3)], int(rng.integers(1, 4))))
+        coefficients = rng.normal(size=(len(s0), 4)) * (rng.random((len(s0), 1)) < 0.5) * [1, 1, 1, 1]
+        coefficients[:, 0] = rng.normal(size=len(s0))
+        profile = CubicProfile(s0, coefficients)
+        end = float(starts[-1] + lengths[-1])
+        if _unmoved_profile(profile, end, fixed):
+            unmoved_seen += 1
+            assert _mapped_profile(profile, mapping, end) is profile, (profile, mapping)
+    assert {"inf", "finite"} <= fixed_seen and unmoved_seen > 50

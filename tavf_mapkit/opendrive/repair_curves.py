@@ -118,6 +118,7 @@ def repair_curves(odr, tolerance: float = TOLERANCE, max_pieces: int = MAX_PIECE
     done = 0  # roads[:done] hold their new rows
     pending = _PendingCurves()  # fitted curves of the roads not done yet
     maybe_redundant = False
+    near_lines = np.zeros(len(roads), dtype=bool)  # per road: two consecutive lines of near headings
     report = reporter(progress, "curves")
     for first in range(0, len(rows), CURVES_PER_BATCH):
         report(first, len(rows))
@@ -127,7 +128,7 @@ def repair_curves(odr, tolerance: float = TOLERANCE, max_pieces: int = MAX_PIECE
         # the road of the next batch's first curve may have curves in this batch too: it waits for them
         upto = int(table.group[rows[first + CURVES_PER_BATCH]]) if first + CURVES_PER_BATCH < len(rows) \
             else len(roads)
-        made, redundant = _replace_curves(roads, done, upto, int(starts[done]) if done < len(roads) else len(table),
+        made, redundant, near_lines[done:upto] = _replace_curves(roads, done, upto, int(starts[done]) if done < len(roads) else len(table),
                                           pending.take(int(starts[upto]) if upto < len(roads) else len(table)),
                                           tolerance, check_redundant=not maybe_redundant)
         repairs += made
@@ -145,7 +146,7 @@ def repair_curves(odr, tolerance: float = TOLERANCE, max_pieces: int = MAX_PIECE
     odr.__dict__.pop("arrays", None)
     if maybe_redundant:
         # a curve that became a line beside a line of its heading is one line with it (ASAM: redundant lines)
-        repaired, merged = repair_redundant(repaired)
+        repaired, merged = repair_redundant(repaired, near_lines)
         repairs += merged
     return repaired, repairs
 
@@ -176,18 +177,19 @@ class _PendingCurves:
 
 
 def _replace_curves(roads: list, lo: int, hi: int, first_row: int, fitted, tolerance: float,
-                    check_redundant: bool) -> tuple[list, bool]:
+                    check_redundant: bool) -> tuple[list, bool, np.ndarray]:
     """Give roads[lo:hi] (whose planView rows start at ``first_row`` of the map's table) their fitted curves as
     chains of rows, in place: one new table of rows for all of them, each road's line a view of its part (a road
     without a replaced curve keeps its line, on the new rows). ``fitted``: ``_PendingCurves.take``. Returns (the
     repairs, in road order: per road one per curve kept and one for its curves replaced; whether a replaced road
-    now has redundant lines, asked only when ``check_redundant``)."""
+    now has redundant lines, asked only when ``check_redundant``; per road whether its line has two consecutive
+    lines of near headings, ``_near_line_roads``)."""
     curve_rows, kept, piece_count, pieces = fitted
     lines_of = [road.reference_line for road in roads[lo:hi]]
     counts = np.array([len(line) for line in lines_of], dtype=np.int64)
     old_bounds = np.concatenate([[0], np.cumsum(counts)])
     if not old_bounds[-1]:
-        return [], False
+        return [], False, np.zeros(hi - lo, dtype=bool)
     side_index, side_params = gather_side(lines_of, counts)
     old = join_rows(np.concatenate([line.narrow for line in lines_of if len(line)]), side_index, side_params)
     old_lines = np.concatenate([line.lines for line in lines_of if len(line)]).astype(np.int32, copy=False)
@@ -228,7 +230,8 @@ def _replace_curves(roads: list, lo: int, hi: int, first_row: int, fitted, toler
         kept_at.setdefault(int(old_road[position[k]]), []).append((int(position[k]), kept[k]))
     with_curves = np.zeros(n_roads, dtype=bool)
     with_curves[old_road[position]] = True
-    near_lines = _near_line_roads(new, new_road, n_roads) & with_curves if check_redundant else None
+    near_lines = _near_line_roads(new, new_road, n_roads)
+    asked = near_lines & with_curves if check_redundant else None
     repairs, redundant = [], False
     for r in range(n_roads):
         a, b = int(new_bounds[r]), int(new_bounds[r + 1])
@@ -257,9 +260,9 @@ def _replace_curves(roads: list, lo: int, hi: int, first_row: int, fitted, toler
                                   f"{int(replaced_count[r])} {names} as {int(arcs[r])} arcs and "
                                   f"{int(more_lines[r]):+d} lines (lane borders within {tolerance * 1000:g} mm of "
                                   f"the curve's)"))
-        if near_lines is not None and near_lines[r] and not redundant:
+        if asked is not None and asked[r] and not redundant:
             redundant = bool(redundant_lines(line.geometries))
-    return repairs, redundant
+    return repairs, redundant, near_lines
 
 
 def _near_line_roads(rows: np.ndarray, road: np.ndarray, n_roads: int) -> np.ndarray:

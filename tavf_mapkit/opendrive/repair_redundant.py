@@ -133,11 +133,12 @@ def _near_line_pairs(line: ReferenceLine) -> bool:
     return bool(np.any(is_line[1:] & is_line[:-1] & (turn < 10.0 * EQUATION_TOLERANCE)))
 
 
-def _repaired_road(road):
-    """(road, {what: how many merged}) for one road; the very road when nothing is redundant."""
+def _repaired_road(road, near_lines: bool | None = None):
+    """(road, {what: how many merged}) for one road; the very road when nothing is redundant. ``near_lines``:
+    ``_near_line_pairs`` of its reference line, when known."""
     counts: dict = {}
     changes: dict = {}
-    if _near_line_pairs(road.reference_line):
+    if _near_line_pairs(road.reference_line) if near_lines is None else near_lines:
         geometries, merged = _merged_lines(road.reference_line.geometries)
         if merged:
             counts["line geometries"] = merged
@@ -167,13 +168,15 @@ def _repaired_road(road):
     return (replace(road, **changes) if changes else road), counts
 
 
-def repair_redundant(odr):
-    """(map with redundant lines merged and redundant cubic records dropped, one Repair per road changed)."""
+def repair_redundant(odr, near_lines: np.ndarray | None = None):
+    """(map with redundant lines merged and redundant cubic records dropped, one Repair per road changed).
+    ``near_lines``: per road whether its reference line has two consecutive lines of near headings
+    (``_near_line_pairs``), when the caller found that for all roads at once."""
     from tavf_mapkit.opendrive.network import OpenDriveMap
 
     roads, repairs = list(odr.roads), []
     for index, road in enumerate(odr.roads):
-        repaired, counts = _repaired_road(road)
+        repaired, counts = _repaired_road(road, None if near_lines is None else bool(near_lines[index]))
         if repaired is road:
             continue
         roads[index] = repaired
