@@ -346,13 +346,12 @@ def test_a_near_cusp_on_an_ordinary_road_becomes_arcs():
 
 
 def test_near_lines_found_for_all_roads_at_once_are_each_roads_own(curves):
-    """_near_line_roads (all roads' rows at once) says of every road what repair_redundant's own test
+    """near_line_roads (all roads' rows at once) says of every road what repair_redundant's own test
     (_near_line_pairs) says of its line: the repair then asks that test of no road. Lines of near headings are
     added within a road and across two roads' boundary (which is no pair)."""
     from tavf_mapkit.opendrive.geometry import GEOMETRY_COLUMNS
     from tavf_mapkit.opendrive.refline import ReferenceLine
-    from tavf_mapkit.opendrive.repair_curves import _near_line_roads
-    from tavf_mapkit.opendrive.repair_redundant import _near_line_pairs
+    from tavf_mapkit.opendrive.repair_redundant import _near_line_pairs, near_line_roads
 
     _, repaired, _ = curves
     lines = [road.reference_line for road in repaired.roads]
@@ -367,6 +366,6 @@ def test_near_lines_found_for_all_roads_at_once_are_each_roads_own(curves):
     lines += [ReferenceLine.from_rows(rows, np.full(len(rows), -1)) for rows in made]
     rows = np.concatenate([line.rows for line in lines if len(line)])
     road = np.repeat(np.arange(len(lines)), [len(line) for line in lines])
-    near = _near_line_roads(rows, road, len(lines))
+    near = near_line_roads(rows, road, len(lines))
     assert near.tolist() == [_near_line_pairs(line) for line in lines]
     assert near[-4:].tolist() == [True, False, False, True]

@@ -52,7 +52,7 @@ from tavf_mapkit.opendrive.geometry import (
 from tavf_mapkit.opendrive.refline import ReferenceLine, gather_side
 from tavf_mapkit.opendrive.repair import Repair
 from tavf_mapkit.opendrive.repair_lengths import TOLERANCE as LENGTH_TOLERANCE
-from tavf_mapkit.opendrive.repair_redundant import EQUATION_TOLERANCE, redundant_lines, repair_redundant
+from tavf_mapkit.opendrive.repair_redundant import near_line_roads, redundant_lines, repair_redundant
 from tavf_mapkit.progress import Progress, Report, no_report, reporter
 
 #: Repair.action of this repair: a curve replaced, and one kept (with why)
@@ -183,7 +183,7 @@ def _replace_curves(roads: list, lo: int, hi: int, first_row: int, fitted, toler
     without a replaced curve keeps its line, on the new rows). ``fitted``: ``_PendingCurves.take``. Returns (the
     repairs, in road order: per road one per curve kept and one for its curves replaced; whether a replaced road
     now has redundant lines, asked only when ``check_redundant``; per road whether its line has two consecutive
-    lines of near headings, ``_near_line_roads``)."""
+    lines of near headings, ``near_line_roads``)."""
     curve_rows, kept, piece_count, pieces = fitted
     lines_of = [road.reference_line for road in roads[lo:hi]]
     counts = np.array([len(line) for line in lines_of], dtype=np.int64)
@@ -230,7 +230,7 @@ def _replace_curves(roads: list, lo: int, hi: int, first_row: int, fitted, toler
         kept_at.setdefault(int(old_road[position[k]]), []).append((int(position[k]), kept[k]))
     with_curves = np.zeros(n_roads, dtype=bool)
     with_curves[old_road[position]] = True
-    near_lines = _near_line_roads(new, new_road, n_roads)
+    near_lines = near_line_roads(new, new_road, n_roads)
     asked = near_lines & with_curves if check_redundant else None
     repairs, redundant = [], False
     for r in range(n_roads):
@@ -263,19 +263,6 @@ def _replace_curves(roads: list, lo: int, hi: int, first_row: int, fitted, toler
         if asked is not None and asked[r] and not redundant:
             redundant = bool(redundant_lines(line.geometries))
     return repairs, redundant, near_lines
-
-
-def _near_line_roads(rows: np.ndarray, road: np.ndarray, n_roads: int) -> np.ndarray:
-    """Per road, whether two of its consecutive rows are lines whose headings are near: only there can
-    ``redundant_lines`` find any (asked of all roads' rows at once, not with a Geometry record per row)."""
-    near = np.zeros(n_roads, dtype=bool)
-    if len(rows) < 2:
-        return near
-    lines = rows[:, 5] == int(GeometryKind.LINE)
-    pair = lines[1:] & lines[:-1] & (road[1:] == road[:-1])
-    pair &= np.abs(_wrap(rows[1:, 3] - rows[:-1, 3])) < 10.0 * EQUATION_TOLERANCE
-    near[road[1:][pair]] = True
-    return near
 
 
 def _widest_offsets(odr, road_indices: np.ndarray, step: float = 1.0, report: Report = no_report) -> dict:
@@ -388,19 +375,25 @@ class Curves:
         v = np.where(poly3[:, None], params[:, 0:4], params[:, 4:8])
         p_max = np.where(~poly3 & (params[:, 8] > 0.5), 1.0, table.length[rows])
         whole = Curves(u, v, table.x[rows], table.y[rows], table.hdg[rows], p_max, np.zeros((len(rows), 1)))
-        whole = whole._with_table()
+        whole = replace(whole, table=whole._arc_length_table(np.arange(len(rows))))
         total = whole.table[:, -1]
         short = used > total + LENGTH_TOLERANCE
-        p_end = np.where(used < total, whole.p_at(np.arange(len(rows)), np.minimum(used, total)), p_max)
-        return replace(whole, p_end=p_end, overrun=np.maximum(used - total, 0.0))._with_table(), short
+        # only a curve whose used part ends before its end gets another p_end and table (each curve's numbers
+        # are its own, whichever curves are computed with it); most are used to their end
+        cut = np.flatnonzero(used < total)
+        p_end, arc_table = p_max.copy(), whole.table.copy()
+        if len(cut):
+            p_end[cut] = whole.p_at(cut, used[cut])
+            arc_table[cut] = replace(whole, p_end=p_end)._arc_length_table(cut)
+        return replace(whole, p_end=p_end, table=arc_table, overrun=np.maximum(used - total, 0.0)), short
 
-    def _with_table(self) -> Curves:
-        n = len(self.p_end)
-        edges = self.p_end[:, None] * np.linspace(0.0, 1.0, _GRID + 1)[None, :]
+    def _arc_length_table(self, curves: np.ndarray) -> np.ndarray:
+        """(len(curves), _GRID + 1): arc length at p_end * k / _GRID of each of the ``curves``."""
+        edges = self.p_end[curves][:, None] * np.linspace(0.0, 1.0, _GRID + 1)[None, :]
         half = 0.5 * np.diff(edges, axis=1)
         nodes = edges[:, :-1, None] + half[:, :, None] * (_GL_NODES + 1.0)
-        panels = (self.speed(np.arange(n)[:, None, None], nodes) * _GL_WEIGHTS).sum(axis=2) * half
-        return replace(self, table=np.concatenate([np.zeros((n, 1)), np.cumsum(panels, axis=1)], axis=1))
+        panels = (self.speed(curves[:, None, None], nodes) * _GL_WEIGHTS).sum(axis=2) * half
+        return np.concatenate([np.zeros((len(curves), 1)), np.cumsum(panels, axis=1)], axis=1)
 
     def tangent(self, c, p):
         """(du/dp, dv/dp) at p."""

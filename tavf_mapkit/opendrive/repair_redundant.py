@@ -133,6 +133,36 @@ def _near_line_pairs(line: ReferenceLine) -> bool:
     return bool(np.any(is_line[1:] & is_line[:-1] & (turn < 10.0 * EQUATION_TOLERANCE)))
 
 
+def near_line_roads(rows: np.ndarray, road: np.ndarray, n_roads: int) -> np.ndarray:
+    """Per road, whether two of its consecutive rows are lines whose headings are near: only there can
+    ``redundant_lines`` find any (asked of all roads' rows at once, not with a Geometry record per row)."""
+    near = np.zeros(n_roads, dtype=bool)
+    if len(rows) < 2:
+        return near
+    lines = rows[:, 5] == int(GeometryKind.LINE)
+    pair = lines[1:] & lines[:-1] & (road[1:] == road[:-1])
+    pair &= np.abs((rows[1:, 3] - rows[:-1, 3] + np.pi) % (2.0 * np.pi) - np.pi) < 10.0 * EQUATION_TOLERANCE
+    near[road[1:][pair]] = True
+    return near
+
+
+#: roads whose rows are gathered at once to find near lines (``repair_redundant``)
+ROADS_PER_BATCH = 8192
+
+
+def _near_lines(roads) -> np.ndarray:
+    """``near_line_roads`` of the roads' reference lines, in batches of roads (a copy of their rows each)."""
+    near = np.zeros(len(roads), dtype=bool)
+    for first in range(0, len(roads), ROADS_PER_BATCH):
+        lines = [road.reference_line for road in roads[first:first + ROADS_PER_BATCH]]
+        counts = [len(line) for line in lines]
+        if sum(counts):
+            rows = np.concatenate([line.narrow for line in lines if len(line)])
+            near[first:first + len(lines)] = near_line_roads(rows, np.repeat(np.arange(len(lines)), counts),
+                                                             len(lines))
+    return near
+
+
 def _repaired_road(road, near_lines: bool | None = None):
     """(road, {what: how many merged}) for one road; the very road when nothing is redundant. ``near_lines``:
     ``_near_line_pairs`` of its reference line, when known."""
@@ -171,12 +201,14 @@ def _repaired_road(road, near_lines: bool | None = None):
 def repair_redundant(odr, near_lines: np.ndarray | None = None):
     """(map with redundant lines merged and redundant cubic records dropped, one Repair per road changed).
     ``near_lines``: per road whether its reference line has two consecutive lines of near headings
-    (``_near_line_pairs``), when the caller found that for all roads at once."""
+    (``_near_line_pairs``), when the caller has found that already; else it is found for all roads at once."""
     from tavf_mapkit.opendrive.network import OpenDriveMap
 
     roads, repairs = list(odr.roads), []
+    if near_lines is None:
+        near_lines = _near_lines(odr.roads)
     for index, road in enumerate(odr.roads):
-        repaired, counts = _repaired_road(road, None if near_lines is None else bool(near_lines[index]))
+        repaired, counts = _repaired_road(road, bool(near_lines[index]))
         if repaired is road:
             continue
         roads[index] = repaired
