@@ -214,11 +214,14 @@ _ROWS_PER_BATCH = 4096
 
 
 def _reversing_roads(odr) -> set:
-    """Indices of the roads whose reference line has a paramPoly3 that reverses on itself (netconvert draws some
-    junction curves as loops with a cusp): a connecting road that does is rebuilt like one that misses its
-    neighbours, since no lane follows it and no chain of arcs can replace it."""
+    """Indices of the connecting roads whose reference line has a paramPoly3 that reverses on itself (netconvert
+    draws some junction curves as loops with a cusp): such a road is rebuilt like one that misses its
+    neighbours, since no lane follows it and no chain of arcs can replace it. Only roads in a junction are
+    asked (the others' curves, most of a map's, are never judged here)."""
     table = odr.arrays.geometries
-    rows = np.flatnonzero((table.kind == int(GeometryKind.PARAM_POLY3)) & (table.length > 0))
+    in_junction = np.array([road.in_junction for road in odr.roads], dtype=bool)
+    rows = np.flatnonzero((table.kind == int(GeometryKind.PARAM_POLY3)) & (table.length > 0)
+                          & in_junction[table.group])
     found = []
     for first in range(0, len(rows), _ROWS_PER_BATCH):
         batch = rows[first:first + _ROWS_PER_BATCH]
@@ -291,6 +294,7 @@ def _misfit(road, ends, table, widths=None) -> tuple[float, float]:
     for k, (here, end) in enumerate(((table[(road.id, "start")], ends[0]), (table[(road.id, "end")], ends[1]))):
         heading_break = max(heading_break, abs(float(wrap(here.heading - end.heading))))
         t = here.lane_offset
+        points, targets = [], []
         for lane in lanes:
             if widths is None:
                 inner, outer = here.borders[lane.id]
@@ -298,8 +302,13 @@ def _misfit(road, ends, table, widths=None) -> tuple[float, float]:
                 inner = here.xy + t * here.lateral
                 t += lane.side * widths[lane.id][k]
                 outer = here.xy + t * here.lateral
-            distance = max(distance, float(np.hypot(*(inner - end.inner[lane.id]))),
-                           float(np.hypot(*(outer - end.outer[lane.id]))))
+            points += (inner, outer)
+            targets += (end.inner[lane.id], end.outer[lane.id])
+        # every border's distance in one call (a road's few lanes: numpy's overhead is per call), the largest
+        # taken in the same order as one by one
+        if points:
+            gaps = np.subtract(points, targets)
+            distance = max(distance, *np.hypot(gaps[:, 0], gaps[:, 1]).tolist())
     return distance, heading_break
 
 

@@ -225,21 +225,23 @@ def _replace_curves(roads: list, lo: int, hi: int, first_row: int, fitted, toler
         np.bincount(old_road, weights=old[:, 5] == int(GeometryKind.LINE), minlength=n_roads)
     first_replaced = np.full(n_roads, -1, dtype=np.int64)
     first_replaced[replaced_road[::-1]] = replaced[::-1]  # the last write per road wins: its first curve
-    kept_at: dict = {}  # road -> [(row in old, why)]
+    kept_at: dict = {}  # road -> [(source line, what was kept and why)]
     for k in np.flatnonzero(~chained).tolist():
-        kept_at.setdefault(int(old_road[position[k]]), []).append((int(position[k]), kept[k]))
+        row = int(position[k])
+        kept_at.setdefault(int(old_road[row]), []).append((
+            None if old_lines[row] < 0 else int(old_lines[row]),
+            f"{ELEMENT_NAMES[GeometryKind(int(old[row, 5]))]} at s={float(old[row, 0]):.6g} kept: {kept[k]}"))
     with_curves = np.zeros(n_roads, dtype=bool)
     with_curves[old_road[position]] = True
     near_lines = near_line_roads(new, new_road, n_roads)
     asked = near_lines & with_curves if check_redundant else None
+    del old, new  # the full rows go before the roads' new lines are made
     repairs, redundant = [], False
     for r in range(n_roads):
         a, b = int(new_bounds[r]), int(new_bounds[r + 1])
         road, line = roads[lo + r], lines_of[r]
-        for row, why in kept_at.get(r, ()):
-            source = None if old_lines[row] < 0 else int(old_lines[row])
-            repairs.append(Repair(KEPT_CURVE, road.id, source, f"{ELEMENT_NAMES[GeometryKind(int(old[row, 5]))]} "
-                                                               f"at s={float(old[row, 0]):.6g} kept: {why}"))
+        for source, detail in kept_at.get(r, ()):
+            repairs.append(Repair(KEPT_CURVE, road.id, source, detail))
         if not replaced_count[r]:
             if b > a:
                 line.share_rows(narrow[a:b])

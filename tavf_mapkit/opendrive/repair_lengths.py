@@ -212,6 +212,7 @@ def _stretched_lines(roads: list, first_rows: np.ndarray, arc: np.ndarray, wrong
     # a record keeps the parameters of its kind only, as its Geometry value would (the other slots read 0)
     rows[:, 6:][np.arange(9) >= _PARAMETER_SLOTS[rows[:, 5].astype(np.int64)][:, None]] = 0.0
     narrow, side_index, side_params = split_rows(rows)
+    del rows  # the full rows go before the roads' new lines are made
     side_bounds = np.searchsorted(side_index, bounds).tolist()
     source_lines = np.concatenate([line.lines for line in lines_of])
     source_lines = np.where(source_lines < 0, -1, source_lines)
