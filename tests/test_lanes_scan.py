@@ -9,8 +9,8 @@ import pytest
 from tavf_mapkit.errors import InputError
 from tavf_mapkit.opendrive import planview_scan
 from tavf_mapkit.opendrive.lanes_scan import lanes_layout, lanes_template
-from tavf_mapkit.opendrive.reader import _Reader, loads_opendrive
-from tavf_mapkit.xmlsafe import prepare_xml_bytes
+from tavf_mapkit.opendrive.reader import loads_opendrive
+from tests.reader_scan import careful, document, same_map, taken_count
 
 LANES = """<lanes>
       <laneOffset s="0" a="{offset}" b="0" c="0" d="0"/>
@@ -51,30 +51,8 @@ def road(road_id: int, width="3.5", c="0", offset="0", second="5", lanes: str | 
             f'hdg="0" length="10">\n        <line/>\n      </geometry>\n    </planView>\n    {lanes}\n  </road>\n')
 
 
-def document(*roads: str, padding: int = 0) -> bytes:
-    return ("<?xml version='1.0'?>\n<OpenDRIVE>\n<header revMajor='1' revMinor='6'/>\n" + "\n" * padding
-            + "".join(roads) + "</OpenDRIVE>\n").encode()
-
-
-def careful(data: bytes):
-    return _Reader(prepare_xml_bytes(data, "t.xodr")).read()
-
-
 def recipe_count(data: bytes, monkeypatch) -> int:
-    taken = []
-    original = planview_scan.PlanViewScan.take_lanes
-
-    def take_lanes(self, line, text):
-        found = original(self, line, text)
-        taken.append(found is not None)
-        return found
-    monkeypatch.setattr(planview_scan.PlanViewScan, "take_lanes", take_lanes)
-    loads_opendrive(data, "t.xodr")
-    return sum(taken)
-
-
-def same_map(data: bytes) -> None:
-    assert pickle.dumps(loads_opendrive(data, "t.xodr")) == pickle.dumps(careful(data))
+    return taken_count(data, monkeypatch, "take_lanes")
 
 
 @pytest.mark.parametrize("padding", [0, 70000])  # 70000: past libxml2's 16-bit line numbers

@@ -7,8 +7,8 @@ import pytest
 
 from tavf_mapkit.errors import InputError
 from tavf_mapkit.opendrive import planview_scan
-from tavf_mapkit.opendrive.reader import _Reader, loads_opendrive
-from tavf_mapkit.xmlsafe import prepare_xml_bytes
+from tavf_mapkit.opendrive.reader import loads_opendrive
+from tests.reader_scan import careful, document, same_map, taken_count
 
 ARC = '<geometry s="{s}" x="1.5" y="-2.25" hdg="0.125" length="{length}">\n  <arc curvature="0.01"/>\n</geometry>'
 LINE = '<geometry s="{s}" x="3e2" y="-.5" hdg="-1.5E-3" length="{length}">\n  <line/>\n</geometry>'
@@ -19,30 +19,8 @@ def road(road_id, plan_view: str, before: str = "\n  ") -> str:
     return f'<road id="{road_id}" length="10" junction="-1">{before}<planView>\n{plan_view}\n</planView>{LANES}</road>\n'
 
 
-def document(*roads: str, padding: int = 0) -> bytes:
-    return ("<?xml version='1.0'?>\n<OpenDRIVE>\n<header revMajor='1' revMinor='6'/>\n" + "\n" * padding
-            + "".join(roads) + "</OpenDRIVE>\n").encode()
-
-
-def careful(data: bytes):
-    return _Reader(prepare_xml_bytes(data, "t.xodr")).read()
-
-
 def scanned_count(data: bytes, monkeypatch) -> int:
-    taken = []
-    original = planview_scan.PlanViewScan.take
-
-    def take(self, line, text):
-        found = original(self, line, text)
-        taken.append(found is not None)
-        return found
-    monkeypatch.setattr(planview_scan.PlanViewScan, "take", take)
-    loads_opendrive(data, "t.xodr")
-    return sum(taken)
-
-
-def same_map(data: bytes) -> None:
-    assert pickle.dumps(loads_opendrive(data, "t.xodr")) == pickle.dumps(careful(data))
+    return taken_count(data, monkeypatch, "take")
 
 
 PLAIN = road(1, ARC.format(s=0, length=2) + "\n" + LINE.format(s=2, length=8))
