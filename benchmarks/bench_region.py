@@ -2,7 +2,8 @@
 
     $ .venv/bin/python benchmarks/bench_region.py                         # grids 8, 16, 32, 60 + the TAVF net
     $ .venv/bin/python benchmarks/bench_region.py --grids 6,12 --json benchmarks/results/region.json
-    $ .venv/bin/python benchmarks/bench_region.py --xodr /tmp/big.xodr    # load figures of any OpenDRIVE file too
+    $ .venv/bin/python benchmarks/bench_region.py --xodr /tmp/big.xodr    # load figures of any OpenDRIVE file only
+    $ .venv/bin/python benchmarks/bench_region.py --xodr /tmp/big.xodr --grids 60   # ... and a region build
 
 For each synthetic region of sample_data/make_region.py (``--grids``: crossings per side; 60 is about 50,000
 OpenDRIVE roads) and for DLR's TAVF SUMO network it runs, in the same run and each in its own process group:
@@ -127,8 +128,10 @@ def print_table(rows: list[dict]) -> None:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--grids", default="8,16,32,60", help="region sizes: crossings per side, comma-separated")
-    parser.add_argument("--no-tavf", action="store_true", help="skip DLR's TAVF network")
+    parser.add_argument("--grids", help="region sizes: crossings per side, comma-separated (default 8,16,32,60; "
+                                         "none with --xodr)")
+    parser.add_argument("--no-tavf", action="store_true", help="skip DLR's TAVF network (skipped with --xodr "
+                                                               "unless --grids is given)")
     parser.add_argument("--xodr", type=Path, action="append", default=[],
                         help="also load this OpenDRIVE file with both readers (no build)")
     parser.add_argument("--timeout", type=float, default=1800, help="wall-time limit of one build (s)")
@@ -143,8 +146,10 @@ def main(argv=None) -> int:
         rows.append({"name": xodr.name, "exit": 0, "wall_s": 0.0, "peak_mib": 0.0, "netconvert_s": 0.0,
                      "stages": {}, "cpp_load": cpp_load(xodr), "our_load": our_load(xodr)})
         rows[-1]["roads"] = rows[-1]["our_load"]["roads"]
-    sources = [] if args.no_tavf or not TAVF_NET.is_file() else [("tavf-net", TAVF_NET)]
-    for grid in [int(g) for g in args.grids.split(",") if g.strip()]:
+    loads_only = args.xodr and args.grids is None  # --xodr FILE alone: the load figures, no builds
+    grids = "" if loads_only else args.grids if args.grids is not None else "8,16,32,60"
+    sources = [] if args.no_tavf or loads_only or not TAVF_NET.is_file() else [("tavf-net", TAVF_NET)]
+    for grid in [int(g) for g in grids.split(",") if g.strip()]:
         osm = scratch / f"region-{grid}.osm"
         if not osm.is_file():
             subprocess.run([sys.executable, str(REPO / "sample_data" / "make_region.py"), "--grid", str(grid),
