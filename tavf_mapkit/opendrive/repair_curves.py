@@ -106,8 +106,8 @@ def repair_curves(odr, tolerance: float = TOLERANCE, max_pieces: int = MAX_PIECE
     next_row = np.minimum(rows + 1, len(table) - 1)
     following = np.where(rows + 1 < ends[table.group[rows]], table.s[next_row], np.inf)
     used = np.minimum(table.length[rows], following - table.s[rows])
-    lever = _widest_offsets(odr, np.unique(table.group[rows]), report=reporter(progress, "lane sections"))
-    widest = np.array([lever.get(int(g), 0.0) for g in table.group[rows]])
+    widest = _widest_offsets(odr, np.unique(table.group[rows]), report=reporter(progress, "lane sections"))
+    widest = widest[table.group[rows]]
     # in batches of curves: memory bounded by the batch, not the map (Maribor: 6 GB in one go). The roads whose
     # last curve is fitted get their new reference lines at once, as views of one new table of rows (no
     # per-road assembly: a region's 59,000 roads spent more in it than in fitting); Columbus's 466,000 curves
@@ -267,16 +267,17 @@ def _replace_curves(roads: list, lo: int, hi: int, first_row: int, fitted, toler
     return repairs, redundant, near_lines
 
 
-def _widest_offsets(odr, road_indices: np.ndarray, step: float = 1.0, report: Report = no_report) -> dict:
-    """Road index -> the largest |t| of any lane border of the road (sampled every ``step`` m and at section
-    ends): how far from the reference line a heading error is felt."""
+def _widest_offsets(odr, road_indices: np.ndarray, step: float = 1.0, report: Report = no_report) -> np.ndarray:
+    """Per road of the map, the largest |t| of any lane border of the road if it is one of ``road_indices``
+    (sampled every ``step`` m and at section ends; else 0): how far from the reference line a heading error is
+    felt."""
     from tavf_mapkit.opendrive.sampling import section_samples
 
     arrays = odr.arrays
     all_sections = np.flatnonzero(np.isin(arrays.section_road, road_indices))
-    if not len(all_sections):
-        return {}
     widest = np.zeros(len(odr.roads))
+    if not len(all_sections):
+        return widest
     for first in range(0, len(all_sections), SECTIONS_PER_BATCH):  # whole-map samples would not fit in memory
         report(first, len(all_sections))
         sections = all_sections[first:first + SECTIONS_PER_BATCH]
@@ -286,7 +287,7 @@ def _widest_offsets(odr, road_indices: np.ndarray, step: float = 1.0, report: Re
         if len(pair_road):
             np.maximum.at(widest, pair_road, np.abs(t_outer))
     report(len(all_sections), len(all_sections))
-    return {int(r): float(widest[r]) for r in road_indices}
+    return widest
 
 
 def _lateral_offsets(arrays, sample_section: np.ndarray, sample_s: np.ndarray):

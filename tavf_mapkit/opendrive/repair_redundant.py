@@ -163,12 +163,23 @@ def _near_lines(roads) -> np.ndarray:
     return near
 
 
+def _single_records(road) -> bool:
+    """Whether every cubic profile of the road has fewer than two records (no record can repeat another)."""
+    if len(road.elevation) > 1 or len(road.superelevation) > 1 or len(road.lane_offset) > 1:
+        return False
+    return all(len(lane.widths) < 2 and len(lane.borders) < 2
+               for section in road.lane_sections for lane in section.lanes)
+
+
 def _repaired_road(road, near_lines: bool | None = None):
     """(road, {what: how many merged}) for one road; the very road when nothing is redundant. ``near_lines``:
     ``_near_line_pairs`` of its reference line, when known."""
+    near = _near_line_pairs(road.reference_line) if near_lines is None else near_lines
+    if not near and _single_records(road):  # nothing to merge: the road as it is, no profile looked into
+        return road, {}
     counts: dict = {}
     changes: dict = {}
-    if _near_line_pairs(road.reference_line) if near_lines is None else near_lines:
+    if near:
         geometries, merged = _merged_lines(road.reference_line.geometries)
         if merged:
             counts["line geometries"] = merged
