@@ -3,6 +3,9 @@ careful element-by-element read, and how many blocks a scan method took."""
 
 import pickle
 
+import pytest
+
+from tavf_mapkit.errors import InputError
 from tavf_mapkit.opendrive import planview_scan
 from tavf_mapkit.opendrive.reader import _Reader, loads_opendrive
 from tavf_mapkit.xmlsafe import prepare_xml_bytes
@@ -34,3 +37,15 @@ def taken_count(data: bytes, monkeypatch, method: str) -> int:
 
 def same_map(data: bytes) -> None:
     assert pickle.dumps(loads_opendrive(data, "t.xodr")) == pickle.dumps(careful(data))
+
+
+def same_map_or_error(data: bytes) -> None:
+    """The scanned read gives the careful read's map, or raises its error with the same message."""
+    try:
+        expected = pickle.dumps(careful(data))
+    except InputError as error:
+        with pytest.raises(InputError) as raised:
+            loads_opendrive(data, "t.xodr")
+        assert str(raised.value) == str(error)
+        return
+    assert pickle.dumps(loads_opendrive(data, "t.xodr")) == expected
