@@ -21,7 +21,8 @@ def _texts_made(odr, monkeypatch) -> int:
     """How many top-level items the text path wrote (not handed to lxml)."""
     made = []
     original = writer._text_or_none
-    monkeypatch.setattr(writer, "_text_or_none", lambda make, item: made.append(original(make, item)) or made[-1])
+    monkeypatch.setattr(writer, "_text_or_none",
+                        lambda make, item, counts=None: made.append(original(make, item, counts)) or made[-1])
     b"".join(writer._serialized(odr))
     return sum(text is not None for text in made)
 
